@@ -1,0 +1,7 @@
+"""specrl_jax: a JAX-native, GPU-vectorised SpecRLBench."""
+
+from specrl_jax.envs.registry import list_envs, make
+
+__version__ = "0.1.0"
+
+__all__ = ["make", "list_envs", "__version__"]
