@@ -1,0 +1,204 @@
+"""Named evaluation suites: the paper's formula lists, its complexity grid, DeepLTL / GenZ lists.
+
+    suite("zone/finite/ood")                           -> list of formula strings
+    suite_info("letter/complexity/reach_avoid/seq4_disj1") -> SuiteInfo (formulas + metadata)
+    list_suites()                                      -> every name
+
+Names:
+* `<family>/<finite|infinite>/<kind>` for the paper's tables, family one of `letter`, `zone`,
+  `arm_grippers` (Arm level 0), `arm_grippers_arm` (Arm level 1), `multi_agent_zone`;
+* `letter/complexity_paper/<reach_only|reach_avoid>/seq<L>_disj<D>`: the paper's example rows;
+* `letter/complexity/<reach_only|reach_avoid>/seq<L>_disj<D>`, L in 2..10, D in 0..3: the grid,
+  `COMPLEXITY_SIZE` formulas per cell drawn from `COMPLEXITY_SEED`. Reach-only: L goals of D+1
+  propositions each. Reach-avoid: L pairs with one reach proposition and D+1 avoided ones (the
+  paper's example rows read that way: `seq2_disj1` = `!(a | b) U (c & (!(d | e) U f))`);
+* `<deepltl|genz>/<letter|zone>/<finite|infinite>`: the methods' own test-task lists.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import functools
+from importlib import resources
+from typing import Literal
+
+import numpy as np
+import yaml
+
+from specrl_jax.specs import formulas
+from specrl_jax.specs.satisfiable import Alphabet
+
+COLOURS = ("blue", "green", "magenta", "yellow")
+LETTERS = tuple("abcdefghijkl")
+COMPLEXITY_SEED = 20261122
+COMPLEXITY_SIZE = 10
+COMPLEXITY_SEQ_LENS = tuple(range(2, 11))
+COMPLEXITY_DISJ = (0, 1, 2, 3)
+COMPLEXITY_KINDS = ("reach_only", "reach_avoid")
+
+
+@dataclasses.dataclass(frozen=True)
+class SuiteInfo:
+    """A named suite and what it needs from a world.
+
+    Attributes:
+        name: the suite name.
+        formulas: formula texts (Spot syntax).
+        propositions: the world's propositions, in the env's order.
+        horizon: "finite" (co-safe: done on success) or "infinite".
+        env_family: "letter", "zone", "arm" or "multi_agent_zone".
+        alphabet: the assignments the world produces (see `satisfiable.alphabet_constraint`).
+        source: where the formulas come from.
+    """
+
+    name: str
+    formulas: tuple[str, ...]
+    propositions: tuple[str, ...]
+    horizon: Literal["finite", "infinite"]
+    env_family: str
+    alphabet: Alphabet
+    source: str
+
+    @property
+    def is_finite(self) -> bool:
+        return self.horizon == "finite"
+
+
+# paper family -> (env family, propositions, alphabet)
+_PAPER_FAMILIES: dict[str, tuple[str, tuple[str, ...], Alphabet]] = {
+    "letter": ("letter", LETTERS, "zero_or_one"),
+    "zone": ("zone", COLOURS, "zero_or_one"),
+    "arm_grippers": ("arm", COLOURS, "zero_or_one"),
+    "arm_grippers_arm": (
+        "arm",
+        tuple(f"{part}_{c}" for part in ("arm", "grippers") for c in COLOURS),
+        "zero_or_one",
+    ),
+    "multi_agent_zone": (
+        "multi_agent_zone",
+        tuple(f"{c}_{agent}" for agent in (0, 1) for c in COLOURS),
+        "per_agent_zero_or_one",
+    ),
+}
+_METHOD_ENVS: dict[str, tuple[tuple[str, ...], str]] = {"letter": (LETTERS, "letter"), "zone": (COLOURS, "zone")}
+_PAPER_SOURCE = "SpecRLBench paper, appendix table of evaluation specifications"
+_METHOD_SOURCE = {
+    "deepltl": "DeepLTL evaluation scripts (test tasks)",
+    "genz": "GenZ-LTL evaluation scripts (test tasks; letter list with its missing comma fixed)",
+}
+
+
+def _load(filename: str) -> dict:
+    with resources.files("specrl_jax.specs").joinpath("data", filename).open() as f:
+        return yaml.safe_load(f)
+
+
+@functools.cache
+def _static_suites() -> dict[str, SuiteInfo]:
+    suites: dict[str, SuiteInfo] = {}
+    paper = _load("paper_specs.yaml")
+    for family, (env_family, props, alphabet) in _PAPER_FAMILIES.items():
+        for horizon, kinds in paper[family].items():
+            for kind, texts in kinds.items():
+                name = f"{family}/{horizon}/{kind}"
+                suites[name] = SuiteInfo(
+                    name, tuple(texts), props, horizon, env_family, alphabet, _PAPER_SOURCE
+                )
+    for kind, cells in paper["letter_complexity"].items():
+        for cell, texts in cells.items():
+            name = f"letter/complexity_paper/{kind}/{cell}"
+            source = "SpecRLBench paper, complexity table example rows"
+            suites[name] = SuiteInfo(
+                name, tuple(texts), LETTERS, "finite", "letter", "zero_or_one", source
+            )
+    for method, envs in _load("method_specs.yaml").items():
+        for env, horizons in envs.items():
+            props, env_family = _METHOD_ENVS[env]
+            for horizon, texts in horizons.items():
+                name = f"{method}/{env}/{horizon}"
+                suites[name] = SuiteInfo(
+                    name, tuple(texts), props, horizon, env_family, "zero_or_one",
+                    _METHOD_SOURCE[method],
+                )
+    return suites
+
+
+def complexity_formulas(
+    kind: str, seq_len: int, num_disj: int, size: int = COMPLEXITY_SIZE, seed: int = COMPLEXITY_SEED
+) -> tuple[str, ...]:
+    """`size` distinct LetterWorld formulas of one complexity-grid cell, fixed by `seed`.
+
+    Args:
+        kind: "reach_only" or "reach_avoid".
+        seq_len: number of goals (reach-only) or reach-avoid pairs.
+        num_disj: disjunctions per goal (reach-only) or per avoid set (reach-avoid).
+        size: formulas in the cell.
+        seed: base seed; the cell's generator is seeded by (seed, kind, seq_len, num_disj).
+    """
+    if kind not in COMPLEXITY_KINDS:
+        raise ValueError(f"kind must be one of {COMPLEXITY_KINDS}, got {kind!r}")
+    rng = np.random.default_rng([seed, COMPLEXITY_KINDS.index(kind), seq_len, num_disj])
+    found: dict[str, None] = {}
+    for _ in range(100 * size):
+        if kind == "reach_only":
+            text = formulas.sample_reach_only(rng, LETTERS, seq_len, num_disj)
+        else:
+            text = formulas.sample_reach_avoid(rng, LETTERS, seq_len, 1, num_disj + 1)
+        found.setdefault(text)
+        if len(found) == size:
+            return tuple(found)
+    raise ValueError(f"cell {kind}/seq{seq_len}_disj{num_disj} has fewer than {size} formulas")
+
+
+@functools.cache
+def _complexity_names() -> tuple[str, ...]:
+    return tuple(
+        f"letter/complexity/{kind}/seq{n}_disj{d}"
+        for kind in COMPLEXITY_KINDS
+        for n in COMPLEXITY_SEQ_LENS
+        for d in COMPLEXITY_DISJ
+    )
+
+
+@functools.cache
+def _complexity_suite(name: str) -> SuiteInfo:
+    kind, cell = name.split("/")[2:]
+    seq_len, num_disj = (int(x) for x in cell[3:].split("_disj"))
+    source = f"generated: seed {COMPLEXITY_SEED}, {COMPLEXITY_SIZE} per cell"
+    return SuiteInfo(
+        name, complexity_formulas(kind, seq_len, num_disj), LETTERS, "finite", "letter",
+        "zero_or_one", source,
+    )
+
+
+def list_suites(prefix: str = "") -> list[str]:
+    """Every suite name (starting with `prefix`), sorted."""
+    names = list(_static_suites()) + list(_complexity_names())
+    return sorted(n for n in names if n.startswith(prefix))
+
+
+def suite_info(name: str) -> SuiteInfo:
+    """The named suite with its metadata.
+
+    Raises:
+        ValueError: unknown name (the message lists close matches and the known names).
+    """
+    if not isinstance(name, str):
+        raise TypeError(f"suite name must be a string, got {type(name).__name__}")
+    static = _static_suites()
+    if name in static:
+        return static[name]
+    if name in _complexity_names():
+        return _complexity_suite(name)
+    known = list_suites()
+    close = difflib.get_close_matches(name, known, n=3, cutoff=0.6)
+    hint = f" Did you mean {', '.join(map(repr, close))}?" if close else ""
+    families = sorted({n.rsplit("/", 1)[0] + "/..." for n in known if "complexity/" in n})
+    shown = [n for n in known if "complexity/" not in n] + families
+    raise ValueError(f"unknown suite {name!r}.{hint} Known suites: {', '.join(shown)}")
+
+
+def suite(name: str) -> list[str]:
+    """The formulas of the named suite (a fresh list)."""
+    return list(suite_info(name).formulas)
