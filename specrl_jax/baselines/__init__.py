@@ -1,0 +1,1 @@
+"""Specification-guided RL baselines on one shared PPO trainer (`specrl_jax.baselines.ppo`)."""

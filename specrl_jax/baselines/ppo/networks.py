@@ -1,0 +1,147 @@
+"""Flax building blocks shared by the baselines: MLPs, the LetterWorld CNN, action distributions
+and the heads every method returns.
+
+Sizes are the benchmark's shared ones: actor MLP [64, 64, 64], critic [64, 64], LetterWorld CNN
+channels [16, 32, 64] with 2x2 kernels. Dense layers use orthogonal weights (gain 1) as the
+reference implementations do.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple, Sequence
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+Activation = Callable[[jax.Array], jax.Array]
+ACTIVATIONS: dict[str, Activation] = {
+    "relu": nn.relu,
+    "tanh": nn.tanh,
+    "softplus": nn.softplus,
+    "identity": lambda x: x,
+}
+
+
+def dense(features: int, gain: float = 1.0) -> nn.Dense:
+    return nn.Dense(features, kernel_init=nn.initializers.orthogonal(gain))
+
+
+class MLP(nn.Module):
+    """Dense layers with `activation` after each hidden layer (and after the last if `final`)."""
+
+    features: Sequence[int]
+    activation: str = "relu"
+    final: bool = True
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        act = ACTIVATIONS[self.activation]
+        for i, width in enumerate(self.features):
+            x = dense(width)(x)
+            if self.final or i < len(self.features) - 1:
+                x = act(x)
+        return x
+
+
+class LetterCNN(nn.Module):
+    """3 x Conv(2x2, VALID) + ReLU on `float[..., V, V, C]`, flattened (7x7 -> 4*4*64 = 1024)."""
+
+    channels: Sequence[int] = (16, 32, 64)
+
+    @nn.compact
+    def __call__(self, image: jax.Array) -> jax.Array:
+        x = image.astype(jnp.float32)
+        for width in self.channels:
+            x = nn.relu(nn.Conv(width, (2, 2), padding="VALID")(x))
+        return x.reshape(*x.shape[:-3], -1)
+
+
+@struct.dataclass
+class Categorical:
+    """Categorical over the last axis of `logits` (masked entries hold a large negative value)."""
+
+    logits: jax.Array
+
+    def log_probs(self) -> jax.Array:
+        return jax.nn.log_softmax(self.logits, axis=-1)
+
+    def sample(self, key: jax.Array) -> jax.Array:
+        return jax.random.categorical(key, self.logits, axis=-1).astype(jnp.int32)
+
+    def mode(self) -> jax.Array:
+        return jnp.argmax(self.logits, axis=-1).astype(jnp.int32)
+
+    def log_prob(self, action: jax.Array) -> jax.Array:
+        return jnp.take_along_axis(self.log_probs(), action[..., None].astype(jnp.int32), -1)[..., 0]
+
+    def entropy(self) -> jax.Array:
+        log_p = self.log_probs()
+        return -jnp.sum(jnp.where(jnp.exp(log_p) > 0, jnp.exp(log_p) * log_p, 0.0), axis=-1)
+
+
+@struct.dataclass
+class DiagGaussian:
+    """Independent normals over the last axis; log-probs and entropies are summed over it."""
+
+    mean: jax.Array
+    std: jax.Array
+
+    def sample(self, key: jax.Array) -> jax.Array:
+        return self.mean + self.std * jax.random.normal(key, self.mean.shape)
+
+    def mode(self) -> jax.Array:
+        return self.mean
+
+    def log_prob(self, action: jax.Array) -> jax.Array:
+        z = (action - self.mean) / self.std
+        return jnp.sum(-0.5 * z**2 - jnp.log(self.std) - 0.5 * jnp.log(2 * jnp.pi), axis=-1)
+
+    def entropy(self) -> jax.Array:
+        return jnp.sum(0.5 + 0.5 * jnp.log(2 * jnp.pi) + jnp.log(self.std), axis=-1)
+
+
+MASKED_LOGIT = -1e9
+
+
+class DiscreteHead(nn.Module):
+    """Logits over `num_actions`; entries where `mask` is False are pushed to `MASKED_LOGIT`."""
+
+    num_actions: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array, mask: jax.Array | None = None) -> Categorical:
+        logits = dense(self.num_actions, gain=0.01)(x)
+        if mask is not None:
+            logits = jnp.where(mask, logits, MASKED_LOGIT)
+        return Categorical(logits)
+
+
+class GaussianHead(nn.Module):
+    """DeepLTL's continuous head: mean `tanh(Wx)`, std `softplus(tanh(W'x)) + 1e-3`."""
+
+    action_dim: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> DiagGaussian:
+        mean = nn.tanh(dense(self.action_dim)(x))
+        std = nn.softplus(nn.tanh(dense(self.action_dim)(x))) + 1e-3
+        return DiagGaussian(mean, std)
+
+
+class PolicyOutput(NamedTuple):
+    """What every method's network returns for a batch of observations `[..., ...]`.
+
+    `value` float32[...]; `cost_value` and `multiplier` float32[...] (zeros for unconstrained methods).
+    """
+
+    pi: Categorical | DiagGaussian
+    value: jax.Array
+    cost_value: jax.Array
+    multiplier: jax.Array
+
+
+def critic(features: Sequence[int], activation: str, final: str = "identity") -> nn.Module:
+    """`[emb, *features, 1]` value MLP; `final` is applied to the scalar output."""
+    return nn.Sequential([MLP(tuple(features) + (1,), activation, final=False), ACTIVATIONS[final]])

@@ -1,0 +1,226 @@
+"""One PPO for every baseline, in the PureJaxRL shape: collect -> GAE -> epochs -> minibatches,
+all inside one jitted `lax.scan`.
+
+A method (see `Method`) supplies its training env, its network and its task distribution; the
+trainer never changes per method. `make_train(config, method)` returns a `Trainer`, callable as
+`train(key) -> (runner_state, metrics)` for a whole run (jit/vmap-able over seeds); `init` and
+`updates` expose the same computation in chunks for progress display and checkpoints.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple, Protocol
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import optax
+from flax import struct
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from specrl_jax.baselines.ppo import losses, rollout
+
+
+@dataclasses.dataclass(frozen=True)
+class PPOConfig:
+    """Trainer settings; defaults are DeepLTL's LetterWorld reference (torch-ac conventions)."""
+
+    num_envs: int = 16
+    num_steps: int = 128
+    total_timesteps: int = 15_000_000
+    update_epochs: int = 8  # the maximum when `target_kl` is set
+    num_minibatches: int = 8
+    lr: float = 3e-4
+    adam_eps: float = 1e-8
+    max_grad_norm: float = 0.5
+    gamma: float = 0.94
+    gae_lambda: float = 0.95
+    clip_eps: float = 0.2
+    ent_coef: float = 0.01
+    vf_coef: float = 0.5
+    clip_value: bool = True
+    normalize_advantages: bool = False
+    timeouts_terminal: bool = True
+    loss: str = "ppo"  # "ppo" or "rco" (GenZ-LTL)
+    target_kl: float | None = None  # stop an update's epochs once the mean approx. KL exceeds it
+    target_cost: float = -0.05
+    multiplier_min: float = 0.01
+    multiplier_max: float = 5.0
+
+    def __post_init__(self) -> None:
+        if self.loss not in losses.LOSSES:
+            raise ValueError(f"loss must be one of {sorted(losses.LOSSES)}, got {self.loss!r}")
+        for name in ("num_envs", "num_steps", "update_epochs", "num_minibatches", "total_timesteps"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if (self.num_envs * self.num_steps) % self.num_minibatches:
+            raise ValueError(
+                f"num_envs * num_steps = {self.num_envs * self.num_steps} is not divisible by "
+                f"num_minibatches = {self.num_minibatches}"
+            )
+
+    @property
+    def batch_size(self) -> int:
+        return self.num_envs * self.num_steps
+
+    @property
+    def minibatch_size(self) -> int:
+        return self.batch_size // self.num_minibatches
+
+    @property
+    def num_updates(self) -> int:
+        return max(1, self.total_timesteps // self.batch_size)
+
+    def loss_config(self) -> losses.LossConfig:
+        fields = losses.LossConfig._fields
+        return losses.LossConfig(**{f: getattr(self, f) for f in fields})
+
+
+class Method(Protocol):
+    """What a baseline plugs into the trainer."""
+
+    env: rollout.TrainEnv
+    network: nn.Module
+
+    def init_task_params(self) -> Any: ...
+
+    def update_task_params(self, task_params: Any, stats: dict[str, jax.Array]) -> Any: ...
+
+
+@struct.dataclass
+class RunnerState:
+    params: Any
+    opt_state: Any
+    env_state: Any  # leading axis B
+    obs: Any  # leading axis B
+    task_params: Any
+    key: jax.Array
+    update: jax.Array  # int32, updates done
+
+
+class Trainer:
+    """PPO for one method; `mesh` (axis "env") shards the env batch over devices."""
+
+    def __init__(self, config: PPOConfig, method: Method, mesh: Mesh | None = None):
+        if mesh is not None and config.num_envs % mesh.size:
+            raise ValueError(f"num_envs={config.num_envs} is not divisible by the {mesh.size} devices")
+        self.config, self.method, self.mesh = config, method, mesh
+        self.loss_fn = losses.LOSSES[config.loss]
+        self.optimizer = optax.chain(
+            optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr, eps=config.adam_eps)
+        )
+
+    def constrain(self, tree: Any) -> Any:
+        """Keep the env axis (axis 0) sharded over the mesh."""
+        if self.mesh is None:
+            return tree
+        sharding = NamedSharding(self.mesh, PartitionSpec("env"))
+        return jax.tree.map(lambda x: jax.lax.with_sharding_constraint(x, sharding), tree)
+
+    def apply(self, params: Any, obs: Any):
+        return self.method.network.apply(params, obs)
+
+    def init(self, key: jax.Array) -> RunnerState:
+        key_params, key_env, key_run = jax.random.split(key, 3)
+        task_params = self.method.init_task_params()
+        obs, env_state = rollout.reset_batch(self.method.env, key_env, self.config.num_envs, task_params)
+        env_state, obs = self.constrain((env_state, obs))
+        params = self.method.network.init(key_params, jax.tree.map(lambda x: x[:1], obs))
+        opt_state = self.optimizer.init(params)
+        return RunnerState(params, opt_state, env_state, obs, task_params, key_run, jnp.zeros((), jnp.int32))
+
+    def update(self, runner: RunnerState) -> tuple[RunnerState, dict[str, jax.Array]]:
+        cfg = self.config
+        key, key_collect, key_epochs = jax.random.split(runner.key, 3)
+
+        # COLLECT TRAJECTORIES
+        env_state, obs, traj = rollout.collect(
+            key_collect, runner.params, self.apply, self.method.env, runner.env_state, runner.obs,
+            runner.task_params, cfg.num_steps, cfg.gamma, cfg.timeouts_terminal, self.constrain,
+        )
+
+        # ADVANTAGES (reward GAE; reachability cost for RCO)
+        last = self.apply(runner.params, obs)
+        advantage, target = losses.compute_gae(
+            traj.reward, traj.value, traj.done, last.value, cfg.gamma, cfg.gae_lambda
+        )
+        if cfg.loss == "rco":
+            cost_advantage, cost_target = losses.compute_reachability_cost(
+                traj.cost, traj.cost_value, traj.done, last.cost_value, cfg.gamma, cfg.gae_lambda
+            )
+        else:
+            cost_advantage = cost_target = jnp.zeros_like(advantage)
+        batch = losses.Batch(
+            traj.obs, traj.action, traj.log_prob, traj.value, traj.cost_value,
+            advantage, target, cost_advantage, cost_target,
+        )
+        batch = jax.tree.map(lambda x: x.reshape(cfg.batch_size, *x.shape[2:]), batch)
+
+        # EPOCHS OF MINIBATCH UPDATES
+        params, opt_state, loss_metrics, epochs = self._epochs(runner.params, runner.opt_state, batch, key_epochs)
+
+        stats = jax.tree.map(jnp.sum, traj.stats)
+        task_params = self.method.update_task_params(runner.task_params, stats)
+        runner = RunnerState(params, opt_state, env_state, obs, task_params, key, runner.update + 1)
+        metrics = {**stats, **loss_metrics, "epochs": epochs, "reward": jnp.mean(traj.reward)}
+        return runner, metrics
+
+    def _epochs(self, params, opt_state, batch, key):
+        cfg, loss_cfg = self.config, self.config.loss_config()
+
+        def minibatch_step(carry, minibatch):
+            params, opt_state = carry
+
+            def loss_of(p):
+                return self.loss_fn(self.apply(p, minibatch.obs), minibatch, loss_cfg)
+
+            (_, metrics), grads = jax.value_and_grad(loss_of, has_aux=True)(params)
+            updates, opt_state = self.optimizer.update(grads, opt_state, params)
+            return (optax.apply_updates(params, updates), opt_state), metrics
+
+        def epoch(params, opt_state, key_epoch):
+            order = jax.random.permutation(key_epoch, cfg.batch_size)
+            shuffled = jax.tree.map(
+                lambda x: x[order].reshape(cfg.num_minibatches, cfg.minibatch_size, *x.shape[1:]), batch
+            )
+            (params, opt_state), metrics = jax.lax.scan(minibatch_step, (params, opt_state), shuffled)
+            return params, opt_state, jax.tree.map(jnp.mean, metrics)
+
+        keys = jax.random.split(key, cfg.update_epochs)
+        zero_metrics = jax.eval_shape(lambda: epoch(params, opt_state, keys[0])[2])
+        zero_metrics = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), zero_metrics)
+
+        def cond(carry):
+            i, _, _, metrics = carry
+            below = True if cfg.target_kl is None else (i == 0) | (metrics["approx_kl"] <= cfg.target_kl)
+            return (i < cfg.update_epochs) & below
+
+        def body(carry):
+            i, params, opt_state, _ = carry
+            params, opt_state, metrics = epoch(params, opt_state, keys[i])
+            return i + 1, params, opt_state, metrics
+
+        epochs, params, opt_state, metrics = jax.lax.while_loop(
+            cond, body, (jnp.zeros((), jnp.int32), params, opt_state, zero_metrics)
+        )
+        return params, opt_state, metrics, epochs
+
+    def updates(self, runner: RunnerState, num_updates: int) -> tuple[RunnerState, dict[str, jax.Array]]:
+        """`num_updates` updates in one scan; metrics stacked `[num_updates]`."""
+        return jax.lax.scan(lambda r, _: self.update(r), runner, None, length=num_updates)
+
+    def __call__(self, key: jax.Array) -> tuple[RunnerState, dict[str, jax.Array]]:
+        return self.updates(self.init(key), self.config.num_updates)
+
+
+def make_train(config: PPOConfig, method: Method, mesh: Mesh | None = None) -> Trainer:
+    """`train = make_train(config, method)`; `jax.jit(train)(key)` runs the whole training."""
+    return Trainer(config, method, mesh)
+
+
+def env_mesh(devices: list | None = None) -> Mesh:
+    """A one-axis mesh named "env" over `devices` (default: all local devices)."""
+    import numpy as np
+
+    return Mesh(np.asarray(devices if devices is not None else jax.local_devices()), ("env",))

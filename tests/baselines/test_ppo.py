@@ -1,0 +1,181 @@
+"""The shared PPO trainer: GAE and the losses against hand/numpy computations, resume, sharding."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from specrl_jax.baselines import runs
+from specrl_jax.baselines.ppo import PPOConfig, make_train
+from specrl_jax.baselines.ppo.losses import (
+    Batch, LossConfig, compute_gae, compute_reachability_cost, ppo_loss, rco_loss,
+)
+from specrl_jax.baselines.ppo.networks import Categorical, DiagGaussian, PolicyOutput
+
+sys.path.insert(0, str(Path(__file__).parent))
+from chain import ChainMethod  # noqa: E402
+
+TINY = PPOConfig(num_envs=4, num_steps=8, total_timesteps=4 * 8 * 4, update_epochs=2, num_minibatches=2)
+
+
+def test_gae_matches_hand_computation():
+    gamma, lam = 0.9, 0.8
+    reward = jnp.array([[1.0], [0.0], [2.0]])
+    value = jnp.array([[0.5], [1.0], [1.5]])
+    done = jnp.array([[False], [True], [False]])
+    last_value = jnp.array([3.0])
+    adv, target = compute_gae(reward, value, done, last_value, gamma, lam)
+    d2 = 2.0 + 0.9 * 3.0 - 1.5  # bootstraps from last_value
+    d1 = 0.0 - 1.0  # episode ends at step 1: no bootstrap
+    d0 = 1.0 + 0.9 * 1.0 - 0.5
+    a2, a1 = d2, d1
+    a0 = d0 + gamma * lam * a1
+    np.testing.assert_allclose(adv[:, 0], [a0, a1, a2], rtol=1e-6)
+    np.testing.assert_allclose(target[:, 0], [a0 + 0.5, a1 + 1.0, a2 + 1.5], rtol=1e-6)
+
+
+def test_reachability_cost_matches_hand_computation():
+    gamma, lam = 0.9, 0.5
+    cost = jnp.array([[-1.0], [1.0], [-1.0]])
+    cost_value = jnp.array([[0.2], [0.4], [-0.5]])
+    done = jnp.array([[False], [True], [False]])
+    last = jnp.array([0.3])
+    adv, target = compute_reachability_cost(cost, cost_value, done, last, gamma, lam)
+    d2 = 0.1 * -1 + 0.9 * max(-1, 0.3) - (-0.5)
+    d1 = 0.1 * 1 + 0.0 - 0.4
+    d0 = 0.1 * -1 + 0.9 * max(-1, 0.4) - 0.2
+    np.testing.assert_allclose(adv[:, 0], [d0 + gamma * lam * d1, d1, d2], rtol=1e-6, atol=1e-7)
+    # C_2 = max(-1, 0) = 0 (rollout end), C_1 = 1 (violation, segment ends), C_0 = max(-1, 1) = 1
+    np.testing.assert_allclose(target[:, 0], [1.0, 1.0, 0.0])
+
+
+def _fixed_batch(n=6, actions=3, seed=0):
+    rng = np.random.default_rng(seed)
+    f = lambda *s: rng.normal(size=s).astype(np.float32)  # noqa: E731
+    batch = Batch(
+        obs=None, action=rng.integers(0, actions, n).astype(np.int32), log_prob=-np.abs(f(n)) - 0.5,
+        value=f(n), cost_value=f(n), advantage=f(n), target=f(n), cost_advantage=f(n), cost_target=f(n),
+    )
+    logits = f(n, actions)
+    out = PolicyOutput(Categorical(jnp.asarray(logits)), jnp.asarray(f(n)), jnp.asarray(f(n)),
+                       jnp.asarray(np.abs(f(n)) * 3))
+    return batch, out, logits
+
+
+def _np_parts(batch, out, logits, cfg):
+    logp_all = logits - np.log(np.exp(logits).sum(-1, keepdims=True))
+    logp = logp_all[np.arange(len(batch.action)), batch.action]
+    ratio = np.exp(logp - batch.log_prob)
+    adv = batch.advantage
+    if cfg.normalize_advantages:
+        adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    surr = np.minimum(ratio * adv, np.clip(ratio, 1 - cfg.clip_eps, 1 + cfg.clip_eps) * adv)
+    entropy = -(np.exp(logp_all) * logp_all).sum(-1).mean()
+
+    def vloss(v, old, tgt):
+        v = np.asarray(v)
+        clipped = old + np.clip(v - old, -cfg.clip_eps, cfg.clip_eps)
+        return np.maximum((v - tgt) ** 2, (clipped - tgt) ** 2).mean()
+
+    return ratio, surr, entropy, vloss
+
+
+@pytest.mark.parametrize("normalize", [False, True])
+def test_ppo_loss_matches_numpy(normalize):
+    cfg = LossConfig(ent_coef=0.01, vf_coef=0.5, normalize_advantages=normalize)
+    batch, out, logits = _fixed_batch()
+    ratio, surr, entropy, vloss = _np_parts(batch, out, logits, cfg)
+    expected = -surr.mean() - 0.01 * entropy + 0.5 * vloss(out.value, batch.value, batch.target)
+    loss, _ = ppo_loss(out, batch, cfg)
+    np.testing.assert_allclose(loss, expected, rtol=1e-5)
+
+
+def test_rco_loss_matches_numpy():
+    cfg = LossConfig(ent_coef=0.01, vf_coef=1.0, gamma=0.94)
+    batch, out, logits = _fixed_batch(seed=1)
+    ratio, surr, entropy, vloss = _np_parts(batch, out, logits, cfg)
+    lam = np.clip(np.asarray(out.multiplier), 0.01, 5.0)
+    g = ratio * batch.cost_advantage + 0.06 * batch.cost_target + 0.05
+    expected = (
+        np.mean(-surr + lam * g)
+        + vloss(out.value, batch.value, batch.target)
+        + vloss(out.cost_value, batch.cost_value, batch.cost_target)
+        - np.mean(lam * g)
+        - 0.01 * entropy
+    )
+    loss, _ = rco_loss(out, batch, cfg)
+    np.testing.assert_allclose(loss, expected, rtol=1e-5)
+    # the multiplier is trained by its own term only (ascent on the constraint): d loss / d lam_i = -g_i / N
+    grad = jax.grad(lambda m: rco_loss(out._replace(multiplier=m), batch, cfg)[0])(out.multiplier)
+    inside = (np.asarray(out.multiplier) > 0.01) & (np.asarray(out.multiplier) < 5.0)
+    np.testing.assert_allclose(np.asarray(grad)[inside], (-g / len(g))[inside], rtol=1e-5)
+
+
+def test_gaussian_log_prob_and_entropy_match_scipy():
+    from scipy.stats import norm
+
+    mean, std = np.array([[0.1, -0.3]]), np.array([[0.5, 1.2]])
+    action = np.array([[0.4, 0.0]])
+    dist = DiagGaussian(jnp.asarray(mean), jnp.asarray(std))
+    np.testing.assert_allclose(dist.log_prob(action), norm.logpdf(action, mean, std).sum(-1), rtol=1e-5)
+    np.testing.assert_allclose(dist.entropy(), norm.entropy(mean, std).sum(-1), rtol=1e-5)
+
+
+def test_kl_early_stop_limits_epochs():
+    loose = PPOConfig(**{**TINY.__dict__, "update_epochs": 6, "loss": "rco", "target_kl": 1e9})
+    tight = PPOConfig(**{**TINY.__dict__, "update_epochs": 6, "loss": "rco", "target_kl": -1.0})
+    _, m_loose = jax.jit(make_train(loose, ChainMethod()))(jax.random.key(0))
+    _, m_tight = jax.jit(make_train(tight, ChainMethod()))(jax.random.key(0))
+    assert np.all(m_loose["epochs"] == 6)
+    assert np.all(m_tight["epochs"] == 1)
+
+
+def test_resume_gives_identical_continuation(tmp_path):
+    trainer = make_train(TINY, ChainMethod())
+    key = jax.random.key(3)
+    straight = runs.train_in_run_dir(trainer, key, tmp_path / "a", chunk_updates=2, log=lambda s: None)
+    runs.train_in_run_dir(trainer, key, tmp_path / "b", chunk_updates=2, max_updates=2, log=lambda s: None)
+    resumed = runs.train_in_run_dir(trainer, key, tmp_path / "b", chunk_updates=2, log=lambda s: None)
+    assert int(resumed.update) == int(straight.update) == TINY.num_updates
+    for a, b in zip(jax.tree.leaves(straight.params), jax.tree.leaves(resumed.params)):
+        np.testing.assert_array_equal(a, b)
+    rows_a, rows_b = runs.read_metrics(tmp_path / "a"), runs.read_metrics(tmp_path / "b")
+    assert [r["update"] for r in rows_b] == [1, 2, 3, 4]
+    assert [r["reward"] for r in rows_a] == [r["reward"] for r in rows_b]
+    assert json.loads((tmp_path / "a" / "config.json").read_text())["ppo"]["num_envs"] == 4
+
+
+SHARDED = textwrap.dedent(
+    """
+    import sys, jax, numpy as np
+    sys.path.insert(0, {here!r})
+    from chain import ChainMethod
+    from specrl_jax.baselines.ppo import PPOConfig, env_mesh, make_train
+    assert jax.device_count() == 2
+    cfg = PPOConfig(num_envs=4, num_steps=8, total_timesteps=4 * 8 * 3, update_epochs=2,
+                    num_minibatches=2, loss="rco", target_kl=0.5)
+    key = jax.random.key(7)
+    plain, m_plain = jax.jit(make_train(cfg, ChainMethod()))(key)
+    sharded, m_sharded = jax.jit(make_train(cfg, ChainMethod(), mesh=env_mesh()))(key)
+    assert len(sharded.obs.sharding.device_set) == 2, sharded.obs.sharding
+    for a, b in zip(jax.tree.leaves(plain.params), jax.tree.leaves(sharded.params)):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+    np.testing.assert_array_equal(m_plain["successes"], m_sharded["successes"])
+    print("OK")
+    """
+)
+
+
+def test_sharded_and_unsharded_runs_agree():
+    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
+    env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).parents[2]), env.get("PYTHONPATH", "")])
+    code = SHARDED.format(here=str(Path(__file__).parent))
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0 and "OK" in proc.stdout, proc.stderr[-3000:]
