@@ -1,0 +1,206 @@
+"""Mass evaluation: every (seed, spec, episode) of a run in one compiled, `vmap`ped call.
+
+Episode `(seed s, spec k, episode e)` draws all its randomness from
+`fold_in(fold_in(key(s), k), e)`, so its outcome does not depend on which other seeds, or how
+many episodes, run beside it: results are deterministic given the seeds. Each episode runs for
+exactly the horizon under a `lax.scan` and freezes once it ends (success, violation, the
+world's termination, or the horizon).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from specrl_jax import automata
+from specrl_jax.eval.metrics import EpisodeTable, per_seed_metrics, summarize
+from specrl_jax.eval.policy import StatefulPolicy, as_stateful, split_action
+from specrl_jax.envs.wrappers import select_tree
+from specrl_jax.tasks import TaskEnv, TaskState
+
+
+@dataclasses.dataclass(frozen=True)
+class EvalResult:
+    """Outcome of `evaluate`: the episode table plus what is needed to read it."""
+
+    env_id: str
+    spec_names: tuple[str, ...]  # formula text (or a given name) per spec
+    is_finite: np.ndarray  # bool[num_specs]
+    seeds: tuple[int, ...]
+    episodes_per_seed: int
+    horizon: int
+    table: EpisodeTable  # fields [num_seeds, num_specs, episodes_per_seed]
+
+    def per_seed(self) -> dict[str, np.ndarray]:
+        """`{metric: float64[num_seeds, num_specs]}`."""
+        return per_seed_metrics(self.table)
+
+    def summary(self, spec_groups: dict[str, list[int]] | None = None) -> dict[str, Any]:
+        """Mean and std over seeds per spec and per group of spec indices (a suite)."""
+        return summarize(self.per_seed(), spec_groups)
+
+
+def resolve_env(env_id_or_env: Any, env_params: Any = None) -> tuple[str, Any, Any]:
+    """`"LetterLTL0-v0"`, `(env, params)` or an env -> `(env_id, env, params)`."""
+    if isinstance(env_id_or_env, str):
+        from specrl_jax.envs.registry import make
+
+        env, params = make(env_id_or_env)
+        env_id = env_id_or_env
+    elif isinstance(env_id_or_env, tuple) and len(env_id_or_env) == 2:
+        env, params = env_id_or_env
+        env_id = repr(env)
+    elif hasattr(env_id_or_env, "reset") and hasattr(env_id_or_env, "step"):
+        env, params = env_id_or_env, env_id_or_env.default_params
+        env_id = repr(env)
+    else:
+        raise TypeError(
+            f"expected an env ID, an env or a pair (env, params); got {type(env_id_or_env).__name__}"
+        )
+    return env_id, env, params if env_params is None else env_params
+
+
+def prepare_specs(env: Any, specs: Any) -> tuple[Any, tuple[str, ...]]:
+    """Formulas, CompiledSpecs or a stacked batch -> `(stacked batch, names)`."""
+    if isinstance(specs, str):
+        raise TypeError(
+            "specs must be a list of formulas or compiled specs; for a named suite pass "
+            "specrl_jax.specs.suite(name)"
+        )
+    if hasattr(specs, "delta"):
+        if jnp.ndim(specs.delta) != 3:
+            raise ValueError("a single CompiledSpec was given; pass a list or a stacked batch")
+        return specs, tuple(f"spec{i}" for i in range(int(specs.delta.shape[0])))
+    specs = list(specs)
+    if not specs:
+        raise ValueError("no specs to evaluate")
+    if all(isinstance(s, str) for s in specs):
+        compiled = [
+            automata.compile_spec(f, env.propositions, alphabet=env.alphabet) for f in specs
+        ]
+        return automata.stack(compiled), tuple(specs)
+    if all(hasattr(s, "delta") for s in specs):
+        return automata.stack(specs), tuple(f"spec{i}" for i in range(len(specs)))
+    raise TypeError("specs must be all formula strings or all CompiledSpec objects")
+
+
+def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int,
+                policy_params: Any, key: jax.Array, spec_index: jax.Array, record: bool = False):
+    """One episode of at most `horizon` steps (trace-time function; `vmap` it over lanes).
+
+    Returns:
+        `(final TaskState, trace)`: `trace` is None, or when `record` a pair of the per-step
+        TaskStates `[T]` (after each step) and `alive bool[T]` (the step was part of the episode).
+    """
+    key_reset, key_init, key_loop = jax.random.split(key, 3)
+    obs, state = task.reset(key_reset, params, spec_index)
+    carry = policy.init(policy_params, obs, state, key_init)
+
+    def body(loop, t):
+        obs, state, carry, done = loop
+        key_policy, key_step = jax.random.split(jax.random.fold_in(key_loop, t))
+        output, carry_next = policy.apply(policy_params, obs, state, carry, key_policy)
+        action, take_epsilon = split_action(output)
+        obs_next, state_next, _, terminated, truncated, _ = task.step_task(
+            key_step, state, action, params, take_epsilon
+        )
+        # An ended episode stays frozen until the scan (the horizon) is over.
+        obs, state, carry = select_tree(done, (obs, state, carry), (obs_next, state_next, carry_next))
+        trace = (state, ~done) if record else None
+        return (obs, state, carry, done | terminated | truncated), trace
+
+    init = (obs, state, carry, jnp.zeros((), bool))
+    (_, state, _, _), trace = jax.lax.scan(body, init, jnp.arange(horizon))
+    return state, trace
+
+
+def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, params: Any,
+                   num_seeds: int, episodes_per_seed: int, horizon: int | None = None
+                   ) -> Callable[[Any, jax.Array], EpisodeTable]:
+    """A jitted `fn(policy_params, seeds int32[num_seeds]) -> EpisodeTable` (device arrays,
+    fields `[num_seeds, K, episodes_per_seed]`); compile once, call many times."""
+    policy = as_stateful(policy)
+    horizon = int(params.max_steps) if horizon is None else int(horizon)
+    num_specs = task.num_specs
+
+    def episode(policy_params, seed, spec_index, episode_index):
+        key = jax.random.fold_in(jax.random.fold_in(jax.random.key(seed), spec_index), episode_index)
+        state, _ = run_episode(policy, task, params, horizon, policy_params, key, spec_index)
+        return _outcome(state)
+
+    per_episode = jax.vmap(episode, in_axes=(None, None, None, 0))
+    per_spec = jax.vmap(per_episode, in_axes=(None, None, 0, None))
+    per_seed = jax.vmap(per_spec, in_axes=(None, 0, None, None))
+
+    @jax.jit
+    def evaluator(policy_params, seeds):
+        return per_seed(policy_params, seeds, jnp.arange(num_specs), jnp.arange(episodes_per_seed))
+
+    return evaluator
+
+
+def _outcome(state: TaskState) -> EpisodeTable:
+    return EpisodeTable(state.success, state.violation, state.time, state.num_accepting)
+
+
+def evaluate(policy: Callable[..., Any] | StatefulPolicy, env_id_or_env: Any, specs: Any,
+             seeds: Sequence[int], episodes_per_seed: int, *, policy_params: Any = None,
+             env_params: Any = None, horizon: int | None = None) -> EvalResult:
+    """Run `episodes_per_seed` episodes of every spec under every seed, in one compiled call.
+
+    Args:
+        policy: a pure function `(policy_params, obs, task_state, key) -> action` (or
+            `(action, take_epsilon)`), or a `StatefulPolicy`.
+        env_id_or_env: an env ID, an env, or `(env, params)`.
+        specs: formula strings, CompiledSpecs, or a stacked batch of K specs.
+        seeds: integer seeds; each becomes `jax.random.key(seed)`.
+        episodes_per_seed: episodes per (seed, spec), each on a fresh layout.
+        policy_params: passed to the policy unchanged (network weights, or None).
+        env_params: overrides the env's params (e.g. `max_steps`).
+        horizon: scan length; defaults to `params.max_steps` (enough for every episode to end).
+
+    Returns:
+        An `EvalResult` with the episode table as numpy arrays.
+    """
+    seeds = tuple(int(s) for s in seeds)
+    if not seeds:
+        raise ValueError("seeds is empty; give at least one integer seed")
+    if not isinstance(episodes_per_seed, int) or episodes_per_seed < 1:
+        raise ValueError(f"episodes_per_seed must be a positive int, got {episodes_per_seed!r}")
+    env_id, env, params = resolve_env(env_id_or_env, env_params)
+    stacked, names = prepare_specs(env, specs)
+    task = TaskEnv(env, stacked)
+    horizon = int(params.max_steps) if horizon is None else int(horizon)
+    evaluator = make_evaluator(policy, task, params, len(seeds), episodes_per_seed, horizon)
+    table = jax.device_get(evaluator(policy_params, jnp.asarray(seeds, jnp.uint32)))
+    return EvalResult(
+        env_id=env_id,
+        spec_names=names,
+        is_finite=np.asarray(stacked.is_finite, bool),
+        seeds=seeds,
+        episodes_per_seed=episodes_per_seed,
+        horizon=horizon,
+        table=EpisodeTable(*(np.asarray(x) for x in table)),
+    )
+
+
+def record_episodes(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, params: Any,
+                    keys: jax.Array, spec_index: jax.Array, policy_params: Any = None,
+                    horizon: int | None = None) -> tuple[TaskState, jax.Array]:
+    """Per-step TaskStates `[B, T]` and `alive bool[B, T]` of `B` episodes (for plots)."""
+    policy = as_stateful(policy)
+    horizon = int(params.max_steps) if horizon is None else int(horizon)
+
+    @jax.jit
+    def run(keys, spec_index):
+        def one(key, index):
+            _, trace = run_episode(policy, task, params, horizon, policy_params, key, index, True)
+            return trace
+
+        return jax.vmap(one)(keys, spec_index)
+
+    return run(keys, spec_index)

@@ -1,0 +1,99 @@
+"""`evaluate`: episode outcomes, determinism, stateful policies and epsilon actions."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from eval.tiny_world import (TinyParams, TinyWorld, persistence_spec, reach_avoid_spec,
+                             recurrence_spec, stack_specs)
+from specrl_jax.eval.evaluate import evaluate, record_episodes
+from specrl_jax.eval.policy import StatefulPolicy, random_policy
+from specrl_jax.tasks import TaskEnv
+
+ENV = TinyWorld()
+PARAMS = TinyParams(max_steps=12)
+SPECS = stack_specs([reach_avoid_spec(), recurrence_spec(), persistence_spec()])
+RIGHT, DOWN = 3, 1
+
+
+@pytest.fixture(scope="module")
+def random_result():
+    return evaluate(random_policy(ENV), (ENV, PARAMS), SPECS, seeds=[1, 2, 3], episodes_per_seed=16)
+
+
+def test_table_shapes_and_outcome_invariants(random_result):
+    t = random_result.table
+    assert t.success.shape == (3, 3, 16)
+    assert not (t.success & t.violation).any()
+    assert ((t.steps >= 1) & (t.steps <= PARAMS.max_steps)).all()
+    # finite spec: an episode that neither succeeds nor violates runs to the horizon
+    timeout = ~t.success[:, 0] & ~t.violation[:, 0]
+    assert (t.steps[:, 0][timeout] == PARAMS.max_steps).all()
+    assert t.success[:, 0].any() and t.violation[:, 0].any()  # random play does both
+    # infinite specs never succeed; non-violating episodes run to the horizon
+    assert not t.success[:, 1:].any()
+    assert (t.steps[:, 1:][~t.violation[:, 1:]] == PARAMS.max_steps).all()
+    assert t.num_accepting[:, 1].max() >= 1
+    assert random_result.is_finite.tolist() == [True, False, False]
+
+
+def test_deterministic_and_independent_of_the_other_seeds(random_result):
+    again = evaluate(random_policy(ENV), (ENV, PARAMS), SPECS, seeds=[1, 2, 3], episodes_per_seed=16)
+    alone = evaluate(random_policy(ENV), (ENV, PARAMS), SPECS, seeds=[2], episodes_per_seed=16)
+    for full, repeat, single in zip(random_result.table, again.table, alone.table):
+        np.testing.assert_array_equal(full, repeat)
+        np.testing.assert_array_equal(full[1], single[0])
+    assert not np.array_equal(random_result.table.steps[0], random_result.table.steps[1])
+
+
+def test_evaluate_agrees_with_recorded_episodes():
+    task = TaskEnv(ENV, SPECS)
+    keys = jax.random.split(jax.random.key(4), 6)
+    index = jnp.arange(6) % 3
+    states, alive = record_episodes(random_policy(ENV), task, PARAMS, keys, index)
+    final = jax.tree.map(lambda x: x[:, -1], states)
+    np.testing.assert_array_equal(np.asarray(alive.sum(axis=1)), np.asarray(final.time))
+    # once an episode ends, its state stays frozen
+    for i in range(6):
+        n = int(alive[i].sum())
+        np.testing.assert_array_equal(np.asarray(states.time[i, n - 1:]), n)
+
+
+def test_stateful_policy_carry_restarts_every_episode():
+    def by_time(params, obs, task_state, key):
+        return jnp.where(task_state.time < 2, RIGHT, DOWN)
+
+    counter = StatefulPolicy(
+        init=lambda params, obs, task_state, key: jnp.zeros((), jnp.int32),
+        apply=lambda params, obs, task_state, count, key: (
+            jnp.where(count < 2, RIGHT, DOWN), count + 1),
+    )
+    pure = evaluate(by_time, (ENV, PARAMS), SPECS, seeds=[5], episodes_per_seed=8)
+    stateful = evaluate(counter, (ENV, PARAMS), SPECS, seeds=[5], episodes_per_seed=8)
+    for a, b in zip(pure.table, stateful.table):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_epsilon_actions_from_the_policy():
+    def epsilon_first(params, obs, task_state, key):
+        return jnp.int32(DOWN), task_state.time == 0
+
+    result = evaluate(epsilon_first, (ENV, PARAMS), stack_specs([persistence_spec()]),
+                      seeds=[1], episodes_per_seed=16)
+    # step 1 is the epsilon step; step 2 moves down from (0, 0): a violation unless it lands on a
+    t = result.table
+    assert t.violation.all() and (t.steps >= 2).all() and (t.steps == 2).mean() > 0.5
+    assert (t.num_accepting == t.steps - 2).all()  # each a after the epsilon step is accepting
+
+
+def test_bad_arguments():
+    with pytest.raises(ValueError, match="seeds"):
+        evaluate(random_policy(ENV), (ENV, PARAMS), SPECS, seeds=[], episodes_per_seed=1)
+    with pytest.raises(ValueError, match="episodes_per_seed"):
+        evaluate(random_policy(ENV), (ENV, PARAMS), SPECS, seeds=[1], episodes_per_seed=0)
+    with pytest.raises(TypeError, match="policy"):
+        evaluate("oracle", (ENV, PARAMS), SPECS, seeds=[1], episodes_per_seed=1)
+    with pytest.raises(TypeError, match="suite"):
+        evaluate(random_policy(ENV), (ENV, PARAMS), "letter/finite/ind", seeds=[1],
+                 episodes_per_seed=1)

@@ -1,0 +1,139 @@
+"""The task layer on a tiny torus with hand-built automata: stepping, reward, termination,
+epsilon steps, horizon and auto-reset."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from eval.tiny_world import (TinyParams, TinyWorld, persistence_spec, reach_avoid_spec,
+                             recurrence_spec, stack_specs)
+from specrl_jax.tasks import TaskEnv
+
+UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
+PARAMS = TinyParams(max_steps=6)
+
+
+def fixed_letters() -> jnp.ndarray:
+    """a at (0, 1), b at (0, 2), c at (1, 0); the agent starts at (0, 0)."""
+    letters = np.full((5, 5), -1, np.int8)
+    letters[0, 1], letters[0, 2], letters[1, 0] = 0, 1, 2
+    return jnp.asarray(letters)
+
+
+@pytest.fixture(scope="module")
+def task():
+    return TaskEnv(TinyWorld(), stack_specs([reach_avoid_spec(), recurrence_spec(), persistence_spec()]))
+
+
+@pytest.fixture(scope="module")
+def step(task):
+    return jax.jit(task.step)
+
+
+def start(task, spec_index):
+    _, state = task.reset(jax.random.key(0), PARAMS, spec_index)
+    env_state = state.env_state.replace(letters=fixed_letters())
+    return state.replace(env_state=env_state, obs=task.env._obs(env_state))
+
+
+def play(step, state, actions, epsilons=None):
+    """Step through `actions`; returns the list of (state, reward, terminated, truncated, info)."""
+    out = []
+    for i, action in enumerate(actions):
+        take_epsilon = bool(epsilons[i]) if epsilons else False
+        _, state, reward, terminated, truncated, info = step(
+            jax.random.key(100 + i), state, jnp.int32(action), PARAMS, jnp.bool_(take_epsilon)
+        )
+        out.append((state, float(reward), bool(terminated), bool(truncated), info))
+    return out
+
+
+def test_reach_avoid_success_reward_and_auto_reset(task, step):
+    state = start(task, 0)
+    assert int(state.q) == 0 and int(state.time) == 0
+    (s1, r1, t1, _, i1), (s2, r2, t2, tr2, i2) = play(step, state, [RIGHT, RIGHT])
+    assert (int(s1.q), r1, t1) == (1, 1.0, False)  # reached a: progress
+    assert np.array_equal(np.asarray(i1["propositions"]), [True, False, False])
+    assert (r2, t2, tr2) == (1.0, True, False)
+    assert bool(i2["success"]) and not bool(i2["violation"]) and int(i2["steps"]) == 2
+    # auto-reset: fresh episode on the next spec, final observation of the success kept
+    assert int(s2.time) == 0 and int(s2.spec_index) == 1 and int(s2.q) == 0
+    assert int(i2["spec_index"]) == 0
+    assert int(np.asarray(i2["final_observation"]["ego"])[0, 2, 0]) == 1
+
+
+def test_violation_ends_with_minus_one(task, step):
+    (s1, r1, t1, _, i1), = play(step, start(task, 0), [DOWN])
+    assert (r1, t1) == (-1.0, True)
+    assert bool(i1["violation"]) and not bool(i1["success"])
+
+
+def test_self_loops_give_no_reward_and_count_steps_in_q(task):
+    state = start(task, 0)
+    (s1, r1, *_), (s2, r2, *_) = play(jax.jit(task.step_task), state, [UP, UP])
+    assert (r1, r2) == (0.0, 0.0)
+    assert (int(s1.steps_in_q), int(s2.steps_in_q)) == (1, 2)
+
+
+def test_infinite_spec_counts_accepting_visits_and_runs_to_horizon(task, step):
+    state = start(task, 1)
+    # a, b (accepting), a, b (accepting), left, left: the horizon of 6 ends it
+    records = play(step, state, [RIGHT, RIGHT, LEFT, RIGHT, DOWN, UP])
+    rewards = [r for _, r, *_ in records]
+    assert rewards == [1.0, 1.0, 1.0, 1.0, 0.0, 0.0]
+    assert [bool(i["accepted"]) for *_, i in records] == [False, True, False, True, False, False]
+    assert not any(t for _, _, t, _, _ in records[:5])
+    _, _, terminated, truncated, info = records[-1]
+    assert truncated and not terminated
+    assert int(info["num_accepting_visits"]) == 2 and not bool(info["success"])
+
+
+def test_epsilon_step_keeps_the_world_and_counts_toward_the_horizon(task):
+    step_task = jax.jit(task.step_task)
+    state = start(task, 2)
+    (s1, r1, t1, _, i1), = play(step_task, state, [RIGHT], epsilons=[True])
+    assert bool(i1["epsilon"]) and int(s1.q) == 1 and r1 == 0.0 and not t1
+    assert np.array_equal(np.asarray(s1.env_state.agent), [0, 0])  # world not stepped
+    assert int(s1.env_state.time) == 0 and int(s1.time) == 1
+    # in state 1 there is no epsilon edge: the request is ignored and the world steps
+    (s2, r2, _, _, i2), = play(step_task, s1, [RIGHT], epsilons=[True])
+    assert not bool(i2["epsilon"]) and np.array_equal(np.asarray(s2.env_state.agent), [0, 1])
+    assert bool(i2["accepted"]) and r2 == 1.0
+    (_, r3, t3, _, i3), = play(step_task, s2, [LEFT])
+    assert t3 and r3 == -1.0 and bool(i3["violation"])  # an empty cell violates in state 1
+    # five world steps in state 0, then an epsilon step: the sixth step hits the horizon
+    records = play(step_task, state, [UP] * 6, epsilons=[False] * 5 + [True])
+    assert [tr for _, _, _, tr, _ in records] == [False] * 5 + [True]
+    assert bool(records[-1][4]["epsilon"]) and int(records[-1][0].env_state.time) == 5
+
+
+def test_reset_draws_layouts_and_specs(task):
+    keys = jax.random.split(jax.random.key(3), 16)
+    _, states = jax.jit(jax.vmap(task.reset, in_axes=(0, None)))(keys, PARAMS)
+    layouts = np.asarray(states.env_state.letters).reshape(16, -1)
+    assert len({row.tobytes() for row in layouts}) > 1
+    assert len(set(np.asarray(states.spec_index).tolist())) > 1
+    np.testing.assert_array_equal(np.asarray(states.q), np.asarray(states.spec.init))
+
+
+def test_batched_step_equals_single_steps(task, step):
+    keys = jax.random.split(jax.random.key(5), 4)
+    _, states = jax.jit(jax.vmap(task.reset, in_axes=(0, None, 0)))(keys, PARAMS, jnp.arange(4) % 3)
+    actions = jnp.array([RIGHT, DOWN, LEFT, UP])
+    step_keys = jax.random.split(jax.random.key(6), 4)
+    batched = jax.jit(jax.vmap(task.step, in_axes=(0, 0, 0, None)))(step_keys, states, actions, PARAMS)
+    for i in range(4):
+        state_i = jax.tree.map(lambda x: x[i], states)
+        single = step(step_keys[i], state_i, actions[i], PARAMS)
+        for got, want in zip(jax.tree.leaves(single[1:5]), jax.tree.leaves(batched[1:5])):
+            np.testing.assert_array_equal(np.asarray(got), np.asarray(want)[i])
+
+
+def test_rejects_specs_of_another_alphabet():
+    spec = reach_avoid_spec()
+    wrong = spec.replace(delta=spec.delta[:, :3], accepting=spec.accepting[:, :3])
+    with pytest.raises(ValueError, match="alphabet"):
+        TaskEnv(TinyWorld(), stack_specs([wrong]))
+    with pytest.raises(ValueError, match="stacked"):
+        TaskEnv(TinyWorld(), spec)
