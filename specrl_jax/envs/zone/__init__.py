@@ -1,0 +1,51 @@
+"""Zone worlds: Point, Car and Ant robots among coloured zones, in MuJoCo MJX.
+
+Registers `{Point,Car,Ant}LTL{0,1,2}-v0` with the suffixes `.partial`, `.overlap` and
+`.partial_overlap`; `make_zone(config)` builds a custom world from a `ZoneConfig`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from specrl_jax.envs.registry import register
+from specrl_jax.envs.zone.config import COLOR_NAMES, ZoneConfig, level_config
+from specrl_jax.envs.zone.env import ZoneEnv, ZoneParams, ZoneState
+from specrl_jax.envs.zone.models import Solver
+
+SUFFIXES = {"": (False, False), ".partial": (True, False), ".overlap": (False, True),
+            ".partial_overlap": (True, True)}
+
+
+def make_zone(config: ZoneConfig, **params: Any) -> tuple[ZoneEnv, ZoneParams]:
+    """Build `(env, params)` from a config; `params` may override `max_steps`."""
+    env = ZoneEnv(config)
+    unknown = set(params) - {"max_steps"}
+    if unknown:
+        raise ValueError(f"unknown ZoneParams fields {sorted(unknown)}; accepted: ['max_steps']")
+    return env, dataclasses.replace(env.default_params, **params) if params else env.default_params
+
+
+def _factory(robot: str, level: int, partial: bool, overlap: bool):
+    config_fields = {f.name for f in dataclasses.fields(ZoneConfig) if f.init}
+
+    def build(**overrides: Any) -> tuple[ZoneEnv, ZoneParams]:
+        config_kw = {k: v for k, v in overrides.items() if k in config_fields}
+        params_kw = {k: v for k, v in overrides.items() if k not in config_fields}
+        config = level_config(robot, level, partial, overlap, **config_kw)
+        return make_zone(config, **params_kw)
+
+    return build
+
+
+for _robot in ("Point", "Car", "Ant"):
+    for _level in (0, 1, 2):
+        for _suffix, (_partial, _overlap) in SUFFIXES.items():
+            register(
+                f"{_robot}LTL{_level}-v0{_suffix}",
+                _factory(_robot, _level, _partial, _overlap),
+                f"{_robot} among 8 zones, level {_level}{_suffix}",
+            )
+
+__all__ = ["COLOR_NAMES", "Solver", "ZoneConfig", "ZoneEnv", "ZoneParams", "ZoneState", "make_zone"]

@@ -1,0 +1,168 @@
+"""The frozen configuration of a Zone world, with its validation at the Python boundary."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from specrl_jax.envs.zone.models import ROBOTS, Solver
+
+#: The 16 colour names the original accepts for custom worlds.
+COLOR_NAMES = (
+    "black", "blue", "green", "cyan", "red", "magenta", "yellow", "white",
+    "orange", "purple", "lime", "teal", "pink", "brown", "navy", "gray",
+)
+#: The benchmark's colours, in the original's placement order.
+BENCHMARK_COLORS = ("green", "yellow", "blue", "magenta")
+#: Zone keepout of the benchmark levels (normal variants); overlap variants use radius / 2.
+LEVEL_KEEPOUT = {0: 0.55, 1: 0.65, 2: 0.70}
+#: Solver settings per robot (see `docs/fidelity.md` and tests/envs/test_zone_physics.py).
+DEFAULT_SOLVERS = {
+    "Point": Solver(iterations=1, ls_iterations=4, condim=6),  # no contacts: nothing to solve
+    "Car": Solver(iterations=8, ls_iterations=10, condim=6),
+    "Ant": Solver(iterations=8, ls_iterations=10, condim=6),
+}
+
+
+def _per_color(value, colors: tuple[str, ...], name: str, kind: type) -> tuple:
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return tuple(kind(value) for _ in colors)
+    if isinstance(value, (tuple, list)) and len(value) == len(colors):
+        return tuple(kind(v) for v in value)
+    raise ValueError(
+        f"{name} must be one {kind.__name__} or a sequence with one per colour "
+        f"({len(colors)} colours: {colors}); got {value!r}"
+    )
+
+
+@dataclass(frozen=True)
+class ZoneConfig:
+    """Static settings of a Zone world (everything that fixes shapes or compiled code).
+
+    Attributes:
+        robot: "Point", "Car" or "Ant".
+        colors: zone colours in placement order (names from `COLOR_NAMES`).
+        zones_per_color: zones of each colour (int, or one per colour).
+        zone_radius: zone radius per colour, metres (labels and sampling).
+        moving_per_color: how many zones of each colour move (the first ones of that colour).
+        zone_keepout: layout keepout of each colour's zones, metres.
+        agent_keepout: layout keepout of the agent, metres (None: the robot's, 0.4).
+        extent: half-size of the placement square, metres (objects are placed inside
+            [-extent + keepout, extent - keepout]^2).
+        partial: linear 1.2 m LiDAR instead of the exponential one.
+        overlap_alphabet: declare every subset of propositions as possible (the `.overlap`
+            variants); when False the alphabet is still widened if the geometry lets
+            zones of different colours overlap.
+        horizon: default `params.max_steps`.
+        solver: physics solver settings (None: the robot's default).
+        wall: |x| or |y| at which the episode terminates, metres.
+        travel: radius of a moving zone's circle, metres.
+        angular_speed: of a moving zone, rad per simulated second.
+        max_tries: tries per object before a layout restart (original: 100).
+        max_restarts: whole-layout attempts before giving up (original: 10000).
+    """
+
+    robot: str = "Point"
+    colors: tuple[str, ...] = BENCHMARK_COLORS
+    zones_per_color: int | tuple[int, ...] = 2
+    zone_radius: float | tuple[float, ...] = 0.4
+    moving_per_color: int | tuple[int, ...] = 0
+    zone_keepout: float | tuple[float, ...] = LEVEL_KEEPOUT[0]
+    agent_keepout: float | None = None
+    extent: float = 2.5
+    partial: bool = False
+    overlap_alphabet: bool = False
+    horizon: int = 1000
+    solver: Solver | None = None
+    wall: float = 3.3
+    travel: float = 0.3
+    angular_speed: float = 2.0
+    max_tries: int = 100
+    max_restarts: int = 10000
+    num_bins: int = field(default=16, init=False)
+
+    def __post_init__(self) -> None:
+        if self.robot not in ROBOTS:
+            raise ValueError(f"unknown robot {self.robot!r}; accepted: {tuple(ROBOTS)}")
+        colors = tuple(self.colors) if isinstance(self.colors, (list, tuple)) else None
+        if not colors:
+            raise ValueError(f"colors must be a non-empty sequence of names; got {self.colors!r}")
+        unknown = [c for c in colors if c not in COLOR_NAMES]
+        if unknown or len(set(colors)) != len(colors):
+            raise ValueError(
+                f"colors must be distinct names from {COLOR_NAMES}; got {colors!r}"
+            )
+        set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
+        set_("colors", colors)
+        set_("zones_per_color", _per_color(self.zones_per_color, colors, "zones_per_color", int))
+        set_("zone_radius", _per_color(self.zone_radius, colors, "zone_radius", float))
+        set_("moving_per_color", _per_color(self.moving_per_color, colors, "moving_per_color", int))
+        set_("zone_keepout", _per_color(self.zone_keepout, colors, "zone_keepout", float))
+        if self.agent_keepout is None:
+            set_("agent_keepout", ROBOTS[self.robot].keepout)
+        if self.solver is None:
+            set_("solver", DEFAULT_SOLVERS[self.robot])
+        self._check_numbers()
+
+    def _check_numbers(self) -> None:
+        for c, n, m, r, k in zip(
+            self.colors, self.zones_per_color, self.moving_per_color, self.zone_radius,
+            self.zone_keepout,
+        ):
+            if n < 0 or not 0 <= m <= n:
+                raise ValueError(
+                    f"colour {c!r}: need 0 <= moving_per_color <= zones_per_color, got "
+                    f"{m} moving of {n} zones"
+                )
+            if r <= 0 or k < 0:
+                raise ValueError(f"colour {c!r}: zone_radius must be > 0 and keepout >= 0, got {r}, {k}")
+            if n and k >= self.extent:
+                raise ValueError(
+                    f"colour {c!r}: zone keepout {k} leaves no room to place it inside the "
+                    f"extent {self.extent} (need keepout < extent)"
+                )
+        if self.num_zones < 1:
+            raise ValueError("a Zone world needs at least one zone")
+        if not 0 <= self.agent_keepout < self.extent:
+            raise ValueError(f"agent_keepout must be in [0, extent={self.extent}), got {self.agent_keepout}")
+        if self.extent <= 0 or self.wall <= self.extent:
+            raise ValueError(
+                f"need 0 < extent < wall so that the agent starts inside the walls; got "
+                f"extent={self.extent}, wall={self.wall}"
+            )
+        if not isinstance(self.horizon, int) or self.horizon < 1:
+            raise ValueError(f"horizon must be a positive int, got {self.horizon!r}")
+        if self.max_tries < 1 or self.max_restarts < 1:
+            raise ValueError("max_tries and max_restarts must be >= 1")
+        placed_area = sum(
+            n * math.pi * k * k for n, k in zip(self.zones_per_color, self.zone_keepout)
+        ) + math.pi * self.agent_keepout**2
+        if placed_area > (2 * self.extent) ** 2 * 0.9069:  # densest disc packing
+            raise ValueError(
+                f"the keepout discs cover {placed_area:.2f} m^2, more than can be packed into "
+                f"the {2 * self.extent:.1f} m square; use fewer or smaller zones"
+            )
+
+    @property
+    def num_zones(self) -> int:
+        return sum(self.zones_per_color)
+
+    @property
+    def propositions(self) -> tuple[str, ...]:
+        """Colour names sorted alphabetically (the original's `get_propositions()`)."""
+        return tuple(sorted(self.colors))
+
+    @property
+    def has_moving_zones(self) -> bool:
+        return sum(self.moving_per_color) > 0
+
+
+def level_config(robot: str, level: int, partial: bool = False, overlap: bool = False, **kw) -> ZoneConfig:
+    """The config of `{robot}LTL{level}-v0[.partial|.overlap|.partial_overlap]`."""
+    if level not in LEVEL_KEEPOUT:
+        raise ValueError(f"level must be 0, 1 or 2, got {level!r}")
+    keepout = 0.2 if overlap else LEVEL_KEEPOUT[level]
+    return ZoneConfig(
+        robot=robot, zone_keepout=keepout, moving_per_color=min(level, 2), partial=partial,
+        overlap_alphabet=overlap, **kw,
+    )
