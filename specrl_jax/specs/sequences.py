@@ -85,15 +85,20 @@ def _check_len(depth: int, max_len: int) -> None:
         raise ValueError(f"max_len={max_len} cannot hold a sequence of {depth} pairs")
 
 
-def _random_subset(key: jax.Array, allowed: jax.Array, size: jax.Array) -> jax.Array:
-    """A uniformly random subset of `min(size, allowed.sum())` allowed entries, as bool[P]."""
-    scores = jnp.where(allowed, jax.random.uniform(key, allowed.shape), 2.0)
-    rank = jnp.argsort(jnp.argsort(scores))
+def _random_subset(scores: jax.Array, allowed: jax.Array, size: jax.Array) -> jax.Array:
+    """A uniformly random subset of `min(size, allowed.sum())` allowed entries, as bool[P].
+
+    `scores` are i.i.d. uniforms, one per entry; the subset is the `size` smallest allowed.
+    """
+    scores = jnp.where(allowed, scores, 2.0)
+    # Rank by pairwise comparison: P is small, and XLA compiles this far faster than a sort.
+    rank = jnp.sum(scores[None, :] < scores[:, None], axis=1)
     return allowed & (rank < size)
 
 
-def _randint(key: jax.Array, bounds: Range) -> jax.Array:
-    return jax.random.randint(key, (), bounds[0], bounds[1] + 1)
+def _size(u: jax.Array, bounds: Range) -> jax.Array:
+    """A uniform integer in the inclusive `bounds`, from a uniform u in [0, 1)."""
+    return jnp.minimum(bounds[0] + jnp.floor(u * (bounds[1] - bounds[0] + 1)), bounds[1])
 
 
 def _pad(rows: list[jax.Array], max_len: int, fill_shape: tuple[int, ...]) -> jax.Array:
@@ -131,12 +136,13 @@ def sample_reach_avoid(
     _check_range("num_avoid", num_avoid)
     if num_reach[0] < 1:
         raise ValueError(f"num_reach must start at 1 or more, got {num_reach!r}")
+    # One draw for all randomness: each threefry call costs seconds of XLA compile on CPU.
+    u = jax.random.uniform(key, (depth, 4, num_props))
     prev_reach = jnp.zeros(num_props, bool)
     reaches, avoids = [], []
-    for key_pair in jax.random.split(key, depth):
-        key_nr, key_reach, key_na, key_avoid = jax.random.split(key_pair, 4)
-        reach = _random_subset(key_reach, ~prev_reach, _randint(key_nr, num_reach))
-        avoid = _random_subset(key_avoid, ~reach & ~prev_reach, _randint(key_na, num_avoid))
+    for i in range(depth):
+        reach = _random_subset(u[i, 1], ~prev_reach, _size(u[i, 0, 0], num_reach))
+        avoid = _random_subset(u[i, 3], ~reach & ~prev_reach, _size(u[i, 2, 0], num_avoid))
         reaches.append(reach)
         avoids.append(avoid)
         prev_reach = reach
@@ -164,9 +170,10 @@ def sample_reach_stay(
     """
     _check_len(2, max_len)
     _check_range("num_avoid", num_avoid)
-    key_prop, key_size, key_avoid = jax.random.split(key, 3)
-    stay = jax.nn.one_hot(jax.random.randint(key_prop, (), 0, num_props), num_props) > 0
-    avoid_first = _random_subset(key_avoid, ~stay, _randint(key_size, num_avoid))
+    u = jax.random.uniform(key, (3, num_props))
+    prop = jnp.minimum(jnp.floor(u[0, 0] * num_props), num_props - 1).astype(jnp.int32)
+    stay = jnp.arange(num_props) == prop
+    avoid_first = _random_subset(u[2], ~stay, _size(u[1, 0], num_avoid))
     empty = jnp.zeros(num_props, bool)
     flags = jnp.zeros(max_len, bool)
     return ReachAvoidSequence(
@@ -285,7 +292,10 @@ def sample_genz_subgoal(
     """
     num_props = tasks.avoid.shape[-1]
     is_open = ~current[tasks.reach] & ~jnp.any(tasks.avoid & current, axis=-1)
-    index = jax.random.categorical(key, jnp.where(is_open, 0.0, -jnp.inf)).astype(jnp.int32)
+    # The u-th open task for a uniform u: exact, and cheaper than a K-way categorical.
+    num_open = jnp.cumsum(is_open)
+    chosen = jax.random.randint(key, (), 0, num_open[-1])
+    index = jnp.searchsorted(num_open, chosen, side="right").astype(jnp.int32)
     reach = jax.nn.one_hot(tasks.reach[index], num_props) > 0
     flags = jnp.zeros(max_len, bool)
     sequence = ReachAvoidSequence(
