@@ -1,0 +1,188 @@
+"""Gymnasium bridge: `import specrl_jax.gym` registers every specrl_jax env ID with Gymnasium.
+
+`gymnasium.make("LetterLTL0-v0")` gives a `GymEnv`: numpy observations in the original
+benchmark's layout (`env.original_observation_space`), reward 0, `info["propositions"]` a set of
+proposition names. `gymnasium.make_vec(env_id, num_envs=N)` gives a `GymVectorEnv` that steps the
+N worlds in one compiled call with same-step auto-reset. Both are thin host shells over the JAX
+env: they jit once, hold the only stateful key, and seed it through `reset(seed=...)`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import jax
+import jax.numpy as jnp
+import numpy as np
+from gymnasium.vector import AutoresetMode
+
+import specrl_jax
+from specrl_jax.envs import spaces
+from specrl_jax.envs.wrappers import AutoReset, BatchedEnv
+
+
+def to_gymnasium_space(space: Any) -> gymnasium.spaces.Space:
+    """A specrl_jax action space as the equivalent gymnasium space."""
+    if isinstance(space, spaces.Discrete) and space.shape == ():
+        return gymnasium.spaces.Discrete(space.n)
+    if isinstance(space, spaces.Box):
+        return gymnasium.spaces.Box(space.low, space.high, space.shape, np.dtype(space.dtype))
+    raise TypeError(f"no gymnasium equivalent for the action space {space!r}")
+
+
+def _make(env_id: str, overrides: dict[str, Any]) -> tuple[Any, Any]:
+    env, params = specrl_jax.make(env_id, **overrides)
+    if not hasattr(env, "original_observation_space") or not hasattr(env, "original_observation"):
+        raise TypeError(
+            f"{env_id!r} provides no original_observation_space / original_observation, "
+            "which the Gymnasium bridge needs"
+        )
+    return env, params
+
+
+def _seed_key(seed: int | None, rng: np.random.Generator) -> jax.Array:
+    return jax.random.key(int(rng.integers(2**31)) if seed is None else seed)
+
+
+class GymEnv(gymnasium.Env):
+    """One specrl_jax world as a `gymnasium.Env` (numpy in, numpy out)."""
+
+    metadata = {"render_modes": []}
+
+    def __init__(self, env_id: str, render_mode: str | None = None, **overrides: Any):
+        if render_mode is not None:
+            raise ValueError(f"render_mode {render_mode!r} is not supported; accepted: None")
+        self.env, self.params = _make(env_id, overrides)
+        self.observation_space = self.env.original_observation_space
+        self.action_space = to_gymnasium_space(self.env.action_space)
+        self.propositions = tuple(self.env.propositions)
+        self._key: jax.Array | None = None
+        self._state: Any = None
+        env = self.env
+
+        def reset(key: jax.Array, params: Any) -> tuple:
+            obs, state = env.reset(key, params)
+            label = env.label(state) if hasattr(env, "label") else None
+            return env.original_observation(obs), state, label
+
+        def step(key: jax.Array, state: Any, action: jax.Array, params: Any) -> tuple:
+            obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
+            return (
+                env.original_observation(obs), state, reward, terminated, truncated,
+                info["propositions"],
+            )
+
+        self._reset, self._step = jax.jit(reset), jax.jit(step)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        if seed is not None or self._key is None:
+            self._key = _seed_key(seed, self.np_random)
+        self._key, key = jax.random.split(self._key)
+        obs, self._state, label = self._reset(key, self.params)
+        props = set() if label is None else self._names(np.asarray(label))
+        return np.asarray(obs), {"propositions": props}
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if self._state is None:
+            raise RuntimeError("call reset() before step()")
+        action = np.asarray(action)
+        self.env.action_space.check(action)
+        self._key, key = jax.random.split(self._key)
+        out = self._step(key, self._state, jnp.asarray(action, self.env.action_space.dtype), self.params)
+        obs, self._state, reward, terminated, truncated, label = out
+        obs, reward, terminated, truncated, label = jax.device_get(
+            (obs, reward, terminated, truncated, label)
+        )
+        info = {"propositions": self._names(label)}
+        return np.asarray(obs), float(reward), bool(terminated), bool(truncated), info
+
+    def _names(self, label: np.ndarray) -> set[str]:
+        return {name for name, on in zip(self.propositions, label) if on}
+
+
+class GymVectorEnv(gymnasium.vector.VectorEnv):
+    """`num_envs` worlds stepped by one compiled call, auto-reset in the same step.
+
+    `info["propositions"]` is bool[N, P] (columns in `self.propositions` order); when an episode
+    ends, `info["final_obs"]` holds its last observation where `info["_final_obs"]` is True.
+    """
+
+    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+
+    def __init__(self, env_id: str, num_envs: int = 1, **overrides: Any):
+        if not isinstance(num_envs, int) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        self.env, self.params = _make(env_id, overrides)
+        self.num_envs = num_envs
+        self.propositions = tuple(self.env.propositions)
+        self.single_observation_space = self.env.original_observation_space
+        self.single_action_space = to_gymnasium_space(self.env.action_space)
+        self.observation_space = gymnasium.vector.utils.batch_space(
+            self.single_observation_space, num_envs
+        )
+        self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, num_envs)
+        batched = BatchedEnv(AutoReset(self.env), num_envs)
+        original = jax.vmap(self.env.original_observation)
+        self._key: jax.Array | None = None
+        self._state: Any = None
+
+        def reset(key: jax.Array, params: Any) -> tuple:
+            obs, state = batched.reset(key, params)
+            return original(obs), state
+
+        def step(key: jax.Array, state: Any, action: jax.Array, params: Any) -> tuple:
+            obs, state, reward, terminated, truncated, info = batched.step(key, state, action, params)
+            final = original(info["final_observation"])
+            return original(obs), state, reward, terminated, truncated, info["propositions"], final
+
+        self._reset, self._step = jax.jit(reset), jax.jit(step)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[np.ndarray, dict[str, Any]]:
+        if seed is not None or self._key is None:
+            self._np_random, _ = gymnasium.utils.seeding.np_random(seed)
+            self._key = _seed_key(seed, self._np_random)
+        self._key, key = jax.random.split(self._key)
+        obs, self._state = self._reset(key, self.params)
+        return np.asarray(obs), {}
+
+    def step(self, actions: Any) -> tuple:
+        if self._state is None:
+            raise RuntimeError("call reset() before step()")
+        actions = np.asarray(actions)
+        if actions not in self.action_space:
+            raise ValueError(
+                f"actions {actions.tolist()} (dtype {actions.dtype}) are not in {self.action_space}"
+            )
+        self._key, key = jax.random.split(self._key)
+        actions = jnp.asarray(actions, self.env.action_space.dtype)
+        obs, self._state, *rest = self._step(key, self._state, actions, self.params)
+        obs, reward, terminated, truncated, label, final = jax.device_get((obs, *rest))
+        done = terminated | truncated
+        info = {"propositions": label, "_propositions": np.ones(self.num_envs, bool)}
+        if done.any():
+            info |= {"final_obs": final, "_final_obs": done}
+        return np.asarray(obs), reward.astype(np.float64), terminated, truncated, info
+
+
+def register_all() -> list[str]:
+    """Register every specrl_jax env ID not yet known to Gymnasium; returns the new IDs."""
+    added = []
+    for env_id in specrl_jax.list_envs():
+        if env_id not in gymnasium.registry:
+            gymnasium.register(
+                id=env_id,
+                entry_point=GymEnv,
+                vector_entry_point=GymVectorEnv,
+                kwargs={"env_id": env_id},
+            )
+            added.append(env_id)
+    return added
+
+
+register_all()
