@@ -1,8 +1,10 @@
 """Mass evaluation: every (seed, spec, episode) of a run in one compiled, `vmap`ped call.
 
-Episode `(seed s, spec k, episode e)` draws all its randomness from
-`fold_in(fold_in(key(s), k), e)`, so its outcome does not depend on which other seeds, or how
-many episodes, run beside it: results are deterministic given the seeds. Each episode runs for
+Episode `(seed s, spec k, episode e)` draws all its randomness (layout, policy, world) from
+`fold_in(key(s), e)`: every spec meets the same sequence of layouts under a seed, as in the
+original protocol (one seeded env reset per episode, the same for every formula), and an
+outcome does not depend on which other seeds, specs or episodes run beside it. Results are
+deterministic given the seeds. Each episode runs for
 exactly the horizon under a `lax.scan` and freezes once it ends (success, violation, the
 world's termination, or the horizon).
 """
@@ -38,6 +40,16 @@ class EvalResult:
     def per_seed(self) -> dict[str, np.ndarray]:
         """`{metric: float64[num_seeds, num_specs]}`."""
         return per_seed_metrics(self.table)
+
+    def select(self, indices: Sequence[int]) -> "EvalResult":
+        """The same result restricted to the specs at `indices` (e.g. one suite of a run)."""
+        indices = list(indices)
+        return dataclasses.replace(
+            self,
+            spec_names=tuple(self.spec_names[i] for i in indices),
+            is_finite=self.is_finite[indices],
+            table=EpisodeTable(*(x[:, indices] for x in self.table)),
+        )
 
     def summary(self, spec_groups: dict[str, list[int]] | None = None) -> dict[str, Any]:
         """Mean and std over seeds per spec and per group of spec indices (a suite)."""
@@ -108,8 +120,13 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
         obs_next, state_next, _, terminated, truncated, _ = task.step_task(
             key_step, state, action, params, take_epsilon
         )
-        # An ended episode stays frozen until the scan (the horizon) is over.
-        obs, state, carry = select_tree(done, (obs, state, carry), (obs_next, state_next, carry_next))
+        # An ended episode stays frozen until the scan (the horizon) is over. The spec is left
+        # out of the select so that it stays unbatched over the episodes that share it.
+        obs, frozen, carry = select_tree(
+            done, (obs, state.replace(spec=None), carry),
+            (obs_next, state_next.replace(spec=None), carry_next),
+        )
+        state = frozen.replace(spec=state.spec)
         trace = (state, ~done) if record else None
         return (obs, state, carry, done | terminated | truncated), trace
 
@@ -128,7 +145,7 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
     num_specs = task.num_specs
 
     def episode(policy_params, seed, spec_index, episode_index):
-        key = jax.random.fold_in(jax.random.fold_in(jax.random.key(seed), spec_index), episode_index)
+        key = jax.random.fold_in(jax.random.key(seed), episode_index)
         state, _ = run_episode(policy, task, params, horizon, policy_params, key, spec_index)
         return _outcome(state)
 
@@ -191,15 +208,20 @@ def evaluate(policy: Callable[..., Any] | StatefulPolicy, env_id_or_env: Any, sp
 def record_episodes(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, params: Any,
                     keys: jax.Array, spec_index: jax.Array, policy_params: Any = None,
                     horizon: int | None = None) -> tuple[TaskState, jax.Array]:
-    """Per-step TaskStates `[B, T]` and `alive bool[B, T]` of `B` episodes (for plots)."""
+    """TaskStates `[B, T + 1]` (the reset state, then after each step) and `alive bool[B, T + 1]`
+    (the state belongs to the episode) of `B` episodes, for plots and checks."""
     policy = as_stateful(policy)
     horizon = int(params.max_steps) if horizon is None else int(horizon)
 
     @jax.jit
     def run(keys, spec_index):
         def one(key, index):
-            _, trace = run_episode(policy, task, params, horizon, policy_params, key, index, True)
-            return trace
+            _, (states, alive) = run_episode(
+                policy, task, params, horizon, policy_params, key, index, True
+            )
+            _, first = task.reset(jax.random.split(key, 3)[0], params, index)
+            states = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, states)
+            return states, jnp.concatenate([jnp.ones((1,), bool), alive])
 
         return jax.vmap(one)(keys, spec_index)
 

@@ -38,12 +38,15 @@ def test_table_shapes_and_outcome_invariants(random_result):
     assert random_result.is_finite.tolist() == [True, False, False]
 
 
-def test_deterministic_and_independent_of_the_other_seeds(random_result):
+def test_deterministic_and_independent_of_the_other_seeds_and_specs(random_result):
     again = evaluate(random_policy(ENV), (ENV, PARAMS), SPECS, seeds=[1, 2, 3], episodes_per_seed=16)
-    alone = evaluate(random_policy(ENV), (ENV, PARAMS), SPECS, seeds=[2], episodes_per_seed=16)
-    for full, repeat, single in zip(random_result.table, again.table, alone.table):
+    for full, repeat in zip(random_result.table, again.table):
         np.testing.assert_array_equal(full, repeat)
-        np.testing.assert_array_equal(full[1], single[0])
+    # seed 2 alone, the last two specs in another order: the same episodes
+    alone = evaluate(random_policy(ENV), (ENV, PARAMS), stack_specs([persistence_spec(),
+                     recurrence_spec()]), seeds=[2], episodes_per_seed=16)
+    for full, single in zip(random_result.table, alone.table):
+        np.testing.assert_array_equal(full[1, 1:], single[0, ::-1])
     assert not np.array_equal(random_result.table.steps[0], random_result.table.steps[1])
 
 
@@ -53,11 +56,12 @@ def test_evaluate_agrees_with_recorded_episodes():
     index = jnp.arange(6) % 3
     states, alive = record_episodes(random_policy(ENV), task, PARAMS, keys, index)
     final = jax.tree.map(lambda x: x[:, -1], states)
-    np.testing.assert_array_equal(np.asarray(alive.sum(axis=1)), np.asarray(final.time))
+    assert (np.asarray(states.time[:, 0]) == 0).all()
+    np.testing.assert_array_equal(np.asarray(alive.sum(axis=1)) - 1, np.asarray(final.time))
     # once an episode ends, its state stays frozen
     for i in range(6):
         n = int(alive[i].sum())
-        np.testing.assert_array_equal(np.asarray(states.time[i, n - 1:]), n)
+        np.testing.assert_array_equal(np.asarray(states.time[i, n - 1:]), n - 1)
 
 
 def test_stateful_policy_carry_restarts_every_episode():

@@ -1,0 +1,228 @@
+"""The `specrl-jax` command line: `envs`, `specs`, `eval` (one function per subcommand).
+
+A subcommand is one function taking the parsed arguments, registered with its options by
+`@command(name, help, arg(...), ...)`; `main` builds the parser from the registry.
+
+    specrl-jax envs
+    specrl-jax specs [--prefix letter/]
+    specrl-jax eval --env LetterLTL0-v0 --policy oracle --suite letter/finite/ind \\
+        --seeds 5 --episodes 100 --out results/
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+Command = Callable[[argparse.Namespace], int]
+COMMANDS: dict[str, tuple[str, tuple[tuple[tuple, dict], ...], Command]] = {}
+POLICIES = ("random", "oracle")
+
+
+def arg(*flags: str, **options: Any) -> tuple[tuple, dict]:
+    """One `add_argument` call, as data."""
+    return flags, options
+
+
+def command(name: str, help: str, *arguments: tuple[tuple, dict]) -> Callable[[Command], Command]:
+    """Register `fn(args) -> exit code` as subcommand `name` with its arguments."""
+
+    def register(fn: Command) -> Command:
+        if name in COMMANDS:
+            raise ValueError(f"subcommand {name!r} is already registered")
+        COMMANDS[name] = (help, arguments, fn)
+        return fn
+
+    return register
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="specrl-jax", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, (help_text, arguments, fn) in COMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        for flags, options in arguments:
+            p.add_argument(*flags, **options)
+        p.set_defaults(run=fn)
+    return parser
+
+
+def enable_compilation_cache() -> None:
+    """JAX's persistent compilation cache (`$SPECRL_JAX_CACHE`, default ~/.cache/specrl_jax)."""
+    import jax
+
+    default = os.path.join(os.path.expanduser("~"), ".cache", "specrl_jax", "jax")
+    jax.config.update("jax_compilation_cache_dir", os.environ.get("SPECRL_JAX_CACHE", default))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except (ValueError, TypeError) as err:
+        print(f"specrl-jax {args.command}: error: {err}", file=sys.stderr)
+        return 2
+
+
+@command("envs", "List the registered env IDs.")
+def list_envs_command(args: argparse.Namespace) -> int:
+    from specrl_jax.envs.registry import describe, list_envs
+
+    for env_id in list_envs():
+        print(f"{env_id:32s} {describe(env_id)}")
+    return 0
+
+
+@command("specs", "List the named specification suites.",
+         arg("--prefix", default="", help="only suites whose name starts with this"),
+         arg("--formulas", action="store_true", help="also print every formula"))
+def list_specs_command(args: argparse.Namespace) -> int:
+    from specrl_jax import specs
+
+    for name in specs.list_suites():
+        if name.startswith(args.prefix):
+            info = specs.suite_info(name)
+            print(f"{name:48s} {info.horizon:8s} {len(info.formulas):3d} formulas")
+            if args.formulas:
+                for formula in info.formulas:
+                    print(f"    {formula}")
+    return 0
+
+
+def make_policy(name: str, env: Any) -> Any:
+    """A policy by name: `random` (any env) or `oracle` (the LetterWorld planner)."""
+    from specrl_jax.eval.planner import oracle_policy
+    from specrl_jax.eval.policy import random_policy
+
+    if name == "random":
+        return random_policy(env)
+    if name == "oracle":
+        return oracle_policy(env)
+    raise ValueError(f"unknown policy {name!r}; known policies: {', '.join(POLICIES)}")
+
+
+def check_suites(names: Sequence[str], env: Any) -> None:
+    """Unknown suites, or suites over other propositions than the env's, are errors."""
+    from specrl_jax import specs
+
+    known = specs.list_suites()
+    for name in names:
+        if name not in known:
+            raise ValueError(f"unknown suite {name!r}; see `specrl-jax specs` for the "
+                             f"{len(known)} known suites")
+        props = specs.suite_info(name).propositions
+        if not set(props) <= set(env.propositions):
+            raise ValueError(f"suite {name!r} is over propositions {props}, but the env has "
+                             f"{env.propositions}")
+
+
+@command(
+    "eval", "Evaluate a policy on specification suites and write JSON, Markdown and plots.",
+    arg("--env", required=True, help="env ID, e.g. LetterLTL0-v0"),
+    arg("--policy", required=True, help=f"one of: {', '.join(POLICIES)}"),
+    arg("--suite", required=True, action="append", help="suite name (repeat for several)"),
+    arg("--seeds", type=int, default=5, help="number of seeds; seeds are 1..N (default 5)"),
+    arg("--episodes", type=int, default=100, help="episodes per seed and spec (default 100)"),
+    arg("--horizon", type=int, default=None, help="episode horizon (default: the env's)"),
+    arg("--out", default="results", help="output directory (default results/)"),
+    arg("--trajectories", type=int, default=4, help="episodes drawn on the map (LetterWorld)"),
+    arg("--no-progress", action="store_true", help="no progress bar"),
+)
+def eval_command(args: argparse.Namespace) -> int:
+    if args.seeds < 1 or args.episodes < 1:
+        raise ValueError(f"--seeds and --episodes must be >= 1, got {args.seeds}, {args.episodes}")
+    enable_compilation_cache()
+    from tqdm import tqdm
+
+    from specrl_jax import automata, specs
+    from specrl_jax.envs.registry import make
+    from specrl_jax.eval import report
+    from specrl_jax.eval.evaluate import evaluate
+
+    overrides = {} if args.horizon is None else {"max_steps": args.horizon}
+    env, params = make(args.env, **overrides)
+    policy = make_policy(args.policy, env)
+    check_suites(args.suite, env)
+    seeds = list(range(1, args.seeds + 1))
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    # every suite in one compiled call: compile the specs (Spot, cached on disk), then run
+    groups, compiled = {}, []
+    with tqdm(total=sum(len(specs.suite(n)) for n in args.suite), unit="spec",
+              desc="compiling specs", disable=args.no_progress) as bar:
+        for name in args.suite:
+            groups[name] = list(range(len(compiled), len(compiled) + len(specs.suite(name))))
+            for formula in specs.suite(name):
+                compiled.append(automata.compile_spec(formula, env.propositions,
+                                                      alphabet=env.alphabet))
+                bar.update()
+    lanes = len(seeds) * len(compiled) * args.episodes
+    if not args.no_progress:
+        print(f"evaluating {args.policy} on {args.env}: {lanes} episodes x {params.max_steps} "
+              "steps in one compiled call", file=sys.stderr)
+    result = evaluate(policy, (env, params), automata.stack(compiled), seeds, args.episodes)
+    names = [f for name in args.suite for f in specs.suite(name)]
+    result = dataclasses.replace(result, env_id=args.env, spec_names=tuple(names))
+    results = [report.SuiteResult(args.env, name, args.policy, result.select(indices))
+               for name, indices in groups.items()]
+
+    config = {key: value for key, value in vars(args).items() if key != "run"}
+    config["seed_list"] = seeds
+    written = [report.write_json(out / "eval.json", results, config)]
+    table = report.markdown_tables(results)
+    (out / "eval.md").write_text(table)
+    written.append(out / "eval.md")
+    complexity = report.plot_complexity(results, out / "complexity.png")
+    if complexity:
+        written.append(complexity)
+    if args.trajectories > 0 and _is_letter_world(env):
+        written.append(_draw_trajectories(policy, env, params, args, out / "trajectories.png"))
+    print(table)
+    print("wrote " + ", ".join(str(p) for p in written))
+    return 0
+
+
+def _is_letter_world(env: Any) -> bool:
+    return hasattr(getattr(env, "config", None), "grid_size") and hasattr(env, "layout")
+
+
+def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namespace,
+                       path: Path) -> Path:
+    """A few episodes of the first suite's first specs, drawn on their maps."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from specrl_jax import automata, specs
+    from specrl_jax.eval import report
+    from specrl_jax.eval.evaluate import record_episodes
+    from specrl_jax.tasks import TaskEnv
+
+    formulas = specs.suite(args.suite[0])
+    count = args.trajectories
+    index = np.arange(count) % len(formulas)
+    compiled = automata.stack([automata.compile_spec(f, env.propositions, alphabet=env.alphabet)
+                               for f in formulas])
+    keys = jax.random.split(jax.random.key(1), count)
+    states, alive = jax.device_get(record_episodes(
+        policy, TaskEnv(env, compiled), params, keys, jnp.asarray(index)))
+    letters, paths, titles = [], [], []
+    layouts = jax.vmap(jax.vmap(env.layout))(states.env_state)  # leaves [B, T + 1, ...]
+    for i in range(count):
+        steps = int(alive[i].sum())
+        letters.append(np.asarray(layouts["letters"][i, 0]))
+        paths.append(np.asarray(layouts["agent"][i, :steps]))
+        outcome = ("success" if states.success[i, -1] else
+                   "violation" if states.violation[i, -1] else "timeout")
+        titles.append(f"{formulas[index[i]]}\n{outcome} after {steps - 1} steps")
+    return report.plot_trajectories(np.stack(letters), paths, titles, env.propositions, path)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
