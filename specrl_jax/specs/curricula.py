@@ -181,9 +181,31 @@ class CurriculumSampler:
         self.max_len = curriculum.max_len if max_len is None else max_len
         if self.max_len < curriculum.max_len:
             raise ValueError(f"max_len={max_len} < {curriculum.max_len} needed by {curriculum.name}")
+        for stage in curriculum.stages:
+            for sampler in stage.samplers:
+                self._check(sampler)
         self.tasks = tuple(self._enumerate(stage) for stage in curriculum.stages)
         sizes = [_num_tasks(t) for t in self.tasks if t is not None]
         self.num_slots = max(sizes, default=1)
+
+    def _check(self, sampler: Sampler) -> None:
+        """Trace the key-driven sampler once: it validates the static settings."""
+        key = jax.random.key(0)
+        if isinstance(sampler, ReachStay):
+            jax.eval_shape(
+                lambda k: seqs.sample_reach_stay(
+                    k, self.num_props, sampler.num_stay, sampler.num_avoid, self.max_len
+                ),
+                key,
+            )
+        elif isinstance(sampler, ReachAvoid):
+            jax.eval_shape(
+                lambda k: seqs.sample_reach_avoid(
+                    k, self.num_props, sampler.depth, sampler.num_reach, sampler.num_avoid,
+                    self.max_len,
+                ),
+                key,
+            )
 
     def _enumerate(self, stage: Stage):
         s = stage.samplers[0]
@@ -219,35 +241,38 @@ class CurriculumSampler:
         """
         if current is None:
             current = jnp.zeros(self.num_props, bool)
+        # One PRNG draw serves every branch (see `sequences.reach_avoid_from_uniform`).
+        u = jax.random.uniform(key, (1 + self.max_len * 4 * self.num_props,))
         branches = [
-            (lambda k, s, c, i=i: self._sample_stage(i, k, s, c))
+            (lambda v, s, c, i=i: self._sample_stage(i, v, s, c))
             for i in range(len(self.curriculum.stages))
         ]
-        return jax.lax.switch(state.stage, branches, key, state.task_success, current)
+        return jax.lax.switch(state.stage, branches, u, state.task_success, current)
 
-    def _sample_stage(self, index, key, task_success, current):
+    def _sample_stage(self, index, u, task_success, current):
         stage, tasks = self.curriculum.stages[index], self.tasks[index]
         sampler = stage.samplers[0]
         if isinstance(sampler, GenZSubgoals):
-            return seqs.sample_genz_subgoal(key, tasks, current, self.max_len)
+            return seqs.genz_from_uniform(u[0], tasks, current, self.max_len)
         if stage.is_enumerated:
             success = task_success[: _num_tasks(tasks)]
             logits = jnp.zeros_like(success) if stage.temperature is None else (
                 -success / stage.temperature
             )
-            return seqs.sample_task(key, tasks, logits)
-        key_pick, key_seq = jax.random.split(key)
-        pick = jax.random.categorical(key_pick, jnp.log(jnp.asarray(stage.probs)))
-        parts = [lambda k, s=s: self._sample_random(s, k) for s in stage.samplers]
-        return jax.lax.switch(pick, parts, key_seq), jnp.int32(-1)
+            return seqs.task_from_uniform(u[0], tasks, logits)
+        pick = jnp.searchsorted(jnp.cumsum(jnp.asarray(stage.probs)), u[0] * sum(stage.probs))
+        pick = jnp.minimum(pick, len(stage.samplers) - 1)
+        rest = u[1:].reshape(self.max_len, 4, self.num_props)
+        parts = [lambda r, s=s: self._sample_random(s, r) for s in stage.samplers]
+        return jax.lax.switch(pick, parts, rest), jnp.int32(-1)
 
-    def _sample_random(self, sampler: Sampler, key: jax.Array) -> seqs.ReachAvoidSequence:
+    def _sample_random(self, sampler: Sampler, u: jax.Array) -> seqs.ReachAvoidSequence:
         if isinstance(sampler, ReachStay):
-            return seqs.sample_reach_stay(
-                key, self.num_props, sampler.num_stay, sampler.num_avoid, self.max_len
+            return seqs.reach_stay_from_uniform(
+                u.reshape(-1, self.num_props)[:3], self.num_props, sampler.num_stay, sampler.num_avoid, self.max_len,
             )
-        return seqs.sample_reach_avoid(
-            key, self.num_props, sampler.depth, sampler.num_reach, sampler.num_avoid, self.max_len
+        return seqs.reach_avoid_from_uniform(
+            u, self.num_props, sampler.depth, sampler.num_reach, sampler.num_avoid, self.max_len
         )
 
     def update(

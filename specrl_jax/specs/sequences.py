@@ -136,8 +136,18 @@ def sample_reach_avoid(
     _check_range("num_avoid", num_avoid)
     if num_reach[0] < 1:
         raise ValueError(f"num_reach must start at 1 or more, got {num_reach!r}")
-    # One draw for all randomness: each threefry call costs seconds of XLA compile on CPU.
     u = jax.random.uniform(key, (depth, 4, num_props))
+    return reach_avoid_from_uniform(u, num_props, depth, num_reach, num_avoid, max_len)
+
+
+def reach_avoid_from_uniform(
+    u: jax.Array, num_props: int, depth: int, num_reach: Range, num_avoid: Range, max_len: int
+) -> ReachAvoidSequence:
+    """`sample_reach_avoid` driven by given uniforms u: float32[>= depth, 4, P] in [0, 1).
+
+    Every sampler has such a form so that a caller (the curriculum) makes one PRNG draw for
+    all of its branches: each threefry call costs seconds of XLA compile time on CPU.
+    """
     prev_reach = jnp.zeros(num_props, bool)
     reaches, avoids = [], []
     for i in range(depth):
@@ -170,7 +180,15 @@ def sample_reach_stay(
     """
     _check_len(2, max_len)
     _check_range("num_avoid", num_avoid)
-    u = jax.random.uniform(key, (3, num_props))
+    return reach_stay_from_uniform(
+        jax.random.uniform(key, (3, num_props)), num_props, num_stay, num_avoid, max_len
+    )
+
+
+def reach_stay_from_uniform(
+    u: jax.Array, num_props: int, num_stay: int, num_avoid: Range, max_len: int
+) -> ReachAvoidSequence:
+    """`sample_reach_stay` driven by given uniforms u: float32[>= 3, P] in [0, 1)."""
     prop = jnp.minimum(jnp.floor(u[0, 0] * num_props), num_props - 1).astype(jnp.int32)
     stay = jnp.arange(num_props) == prop
     avoid_first = _random_subset(u[2], ~stay, _size(u[1, 0], num_avoid))
@@ -251,7 +269,16 @@ def sample_task(
     Returns:
         The drawn sequence and its index, int32[].
     """
-    index = jax.random.categorical(key, logits).astype(jnp.int32)
+    return task_from_uniform(jax.random.uniform(key), tasks, logits)
+
+
+def task_from_uniform(
+    u: jax.Array, tasks: ReachAvoidSequence, logits: jax.Array
+) -> tuple[ReachAvoidSequence, jax.Array]:
+    """`sample_task` by inverting the CDF of softmax(`logits`) at the uniform u: float32[]."""
+    cdf = jnp.cumsum(jax.nn.softmax(logits))
+    index = jnp.searchsorted(cdf, u * cdf[-1], side="right")
+    index = jnp.minimum(index, logits.shape[0] - 1).astype(jnp.int32)
     return jax.tree_util.tree_map(lambda leaf: leaf[index], tasks), index
 
 
@@ -290,11 +317,18 @@ def sample_genz_subgoal(
     Returns:
         A one-pair `ReachAvoidSequence` and the task index, int32[].
     """
+    return genz_from_uniform(jax.random.uniform(key), tasks, current, max_len)
+
+
+def genz_from_uniform(
+    u: jax.Array, tasks: GenZTasks, current: jax.Array, max_len: int = 1
+) -> tuple[ReachAvoidSequence, jax.Array]:
+    """`sample_genz_subgoal` driven by a uniform u: float32[] in [0, 1)."""
     num_props = tasks.avoid.shape[-1]
     is_open = ~current[tasks.reach] & ~jnp.any(tasks.avoid & current, axis=-1)
-    # The u-th open task for a uniform u: exact, and cheaper than a K-way categorical.
+    # The n-th open task for a uniform n: exact, and cheaper than a K-way categorical.
     num_open = jnp.cumsum(is_open)
-    chosen = jax.random.randint(key, (), 0, num_open[-1])
+    chosen = jnp.minimum(jnp.floor(u * num_open[-1]), num_open[-1] - 1)
     index = jnp.searchsorted(num_open, chosen, side="right").astype(jnp.int32)
     reach = jax.nn.one_hot(tasks.reach[index], num_props) > 0
     flags = jnp.zeros(max_len, bool)

@@ -133,7 +133,7 @@ def test_ltl2action_eventually_family():
     sampler = specs.ltl2action_sampler("Eventually_1_5_1_4")
     rng = np.random.default_rng(3)
     sizes, lengths, conj = [], set(), set()
-    for _ in range(200):
+    for _ in range(100):
         text = sampler(rng, LETTERS)
         assert specs.is_satisfiable(text, LETTERS), text
         f = spot.formula(text)
