@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-from typing import Literal, Union
+from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -62,7 +62,7 @@ class GenZSubgoals:
     max_avoid: int = 3
 
 
-Sampler = Union[ReachAvoid, ReachStay, AllReach, AllReachAvoid, GenZSubgoals]
+Sampler = ReachAvoid | ReachStay | AllReach | AllReachAvoid | GenZSubgoals
 _ENUMERATED = (AllReach, AllReachAvoid, GenZSubgoals)
 
 
@@ -180,7 +180,9 @@ class CurriculumSampler:
         self.num_props = num_props
         self.max_len = curriculum.max_len if max_len is None else max_len
         if self.max_len < curriculum.max_len:
-            raise ValueError(f"max_len={max_len} < {curriculum.max_len} needed by {curriculum.name}")
+            raise ValueError(
+                f"max_len={max_len} < {curriculum.max_len} needed by {curriculum.name}"
+            )
         for stage in curriculum.stages:
             for sampler in stage.samplers:
                 self._check(sampler)
@@ -201,7 +203,11 @@ class CurriculumSampler:
         elif isinstance(sampler, ReachAvoid):
             jax.eval_shape(
                 lambda k: seqs.sample_reach_avoid(
-                    k, self.num_props, sampler.depth, sampler.num_reach, sampler.num_avoid,
+                    k,
+                    self.num_props,
+                    sampler.depth,
+                    sampler.num_reach,
+                    sampler.num_avoid,
                     self.max_len,
                 ),
                 key,
@@ -256,8 +262,10 @@ class CurriculumSampler:
             return seqs.genz_from_uniform(u[0], tasks, current, self.max_len)
         if stage.is_enumerated:
             success = task_success[: _num_tasks(tasks)]
-            logits = jnp.zeros_like(success) if stage.temperature is None else (
-                -success / stage.temperature
+            logits = (
+                jnp.zeros_like(success)
+                if stage.temperature is None
+                else (-success / stage.temperature)
             )
             return seqs.task_from_uniform(u[0], tasks, logits)
         pick = jnp.searchsorted(jnp.cumsum(jnp.asarray(stage.probs)), u[0] * sum(stage.probs))
@@ -269,7 +277,11 @@ class CurriculumSampler:
     def _sample_random(self, sampler: Sampler, u: jax.Array) -> seqs.ReachAvoidSequence:
         if isinstance(sampler, ReachStay):
             return seqs.reach_stay_from_uniform(
-                u.reshape(-1, self.num_props)[:3], self.num_props, sampler.num_stay, sampler.num_avoid, self.max_len,
+                u.reshape(-1, self.num_props)[:3],
+                self.num_props,
+                sampler.num_stay,
+                sampler.num_avoid,
+                self.max_len,
             )
         return seqs.reach_avoid_from_uniform(
             u, self.num_props, sampler.depth, sampler.num_reach, sampler.num_avoid, self.max_len

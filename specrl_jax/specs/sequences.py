@@ -75,7 +75,9 @@ def _check_range(name: str, value: Range) -> None:
         or not all(isinstance(v, int) for v in value)
         or not 0 <= value[0] <= value[1]
     ):
-        raise ValueError(f"{name} must be a (low, high) tuple of ints with 0 <= low <= high, got {value!r}")
+        raise ValueError(
+            f"{name} must be a (low, high) tuple of ints with 0 <= low <= high, got {value!r}"
+        )
 
 
 def _check_len(depth: int, max_len: int) -> None:
@@ -235,7 +237,7 @@ def all_reach_tasks(num_props: int, depth: int, max_len: int) -> ReachAvoidSeque
     chains = [
         [(r, None) for r in seq]
         for seq in itertools.product(range(num_props), repeat=depth)
-        if all(a != b for a, b in zip(seq, seq[1:]))
+        if all(a != b for a, b in itertools.pairwise(seq))
     ]
     return _stack_tasks(chains, num_props, max_len)
 
@@ -251,7 +253,7 @@ def all_reach_avoid_tasks(num_props: int, depth: int, max_len: int) -> ReachAvoi
     chains = [
         list(chain)
         for chain in itertools.product(pairs, repeat=depth)
-        if all(nxt[0] != prev[0] and nxt[1] != prev[0] for prev, nxt in zip(chain, chain[1:]))
+        if all(nxt[0] != prev[0] and nxt[1] != prev[0] for prev, nxt in itertools.pairwise(chain))
     ]
     return _stack_tasks(chains, num_props, max_len)
 

@@ -81,7 +81,10 @@ _PAPER_FAMILIES: dict[str, tuple[str, tuple[str, ...], Alphabet]] = {
         "per_agent_zero_or_one",
     ),
 }
-_METHOD_ENVS: dict[str, tuple[tuple[str, ...], str]] = {"letter": (LETTERS, "letter"), "zone": (COLOURS, "zone")}
+_METHOD_ENVS: dict[str, tuple[tuple[str, ...], str]] = {
+    "letter": (LETTERS, "letter"),
+    "zone": (COLOURS, "zone"),
+}
 _PAPER_SOURCE = "SpecRLBench paper, appendix table of evaluation specifications"
 _METHOD_SOURCE = {
     "deepltl": "DeepLTL evaluation scripts (test tasks)",
@@ -118,7 +121,12 @@ def _static_suites() -> dict[str, SuiteInfo]:
             for horizon, texts in horizons.items():
                 name = f"{method}/{env}/{horizon}"
                 suites[name] = SuiteInfo(
-                    name, tuple(texts), props, horizon, env_family, "zero_or_one",
+                    name,
+                    tuple(texts),
+                    props,
+                    horizon,
+                    env_family,
+                    "zero_or_one",
                     _METHOD_SOURCE[method],
                 )
     return suites
@@ -167,8 +175,13 @@ def _complexity_suite(name: str) -> SuiteInfo:
     seq_len, num_disj = (int(x) for x in cell[3:].split("_disj"))
     source = f"generated: seed {COMPLEXITY_SEED}, {COMPLEXITY_SIZE} per cell"
     return SuiteInfo(
-        name, complexity_formulas(kind, seq_len, num_disj), LETTERS, "finite", "letter",
-        "zero_or_one", source,
+        name,
+        complexity_formulas(kind, seq_len, num_disj),
+        LETTERS,
+        "finite",
+        "letter",
+        "zero_or_one",
+        source,
     )
 
 

@@ -46,7 +46,9 @@ def _draw(stage, seed=0, task_success=None):
     sampler, sample = _zone_sampler()
     state = sampler.init().replace(stage=jnp.int32(stage))
     if task_success is not None:
-        state = state.replace(task_success=state.task_success.at[: len(task_success)].set(task_success))
+        state = state.replace(
+            task_success=state.task_success.at[: len(task_success)].set(task_success)
+        )
     keys = jax.random.split(jax.random.key(seed), BATCH)
     return jax.device_get(sample(keys, state))
 
@@ -57,13 +59,17 @@ def _check_rules(s):
     assert not (reach[:, 1:] & reach[:, :-1] & ~s.epsilon[:, :-1, None]).any()
     assert not (avoid[:, 1:] & reach[:, :-1]).any()
     for b in range(reach.shape[0]):
-        assert not reach[b, s.length[b]:].any() and not avoid[b, s.length[b]:].any()
+        assert not reach[b, s.length[b] :].any() and not avoid[b, s.length[b] :].any()
 
 
 def test_enumerated_stages_draw_their_tasks():
     sampler, _ = _zone_sampler()
     assert sampler.num_slots == 72
-    for stage, num_tasks, depth, has_avoid in [(0, 4, 1, False), (1, 12, 2, False), (3, 72, 2, True)]:
+    for stage, num_tasks, depth, has_avoid in [
+        (0, 4, 1, False),
+        (1, 12, 2, False),
+        (3, 72, 2, True),
+    ]:
         s, task = _draw(stage)
         assert ((task >= 0) & (task < num_tasks)).all() and len(set(task)) > num_tasks // 2
         assert (s.length == depth).all() and (s.repeat_last == 0).all() and not s.epsilon.any()
@@ -92,7 +98,7 @@ def test_mixture_stages(stage, stay_prob, repeat, depth):
     assert (s.length[~stay] == depth).all() and (s.repeat_last[~stay] == 0).all()
     _check_rules(s)
     for i in range(0, BATCH, 10):
-        one = jax.tree_util.tree_map(lambda x: x[i], s)
+        one = jax.tree_util.tree_map(lambda x, i=i: x[i], s)
         text = specs.sequence_to_formula(one, COLOURS)
         assert specs.is_satisfiable(text, COLOURS), text
 
@@ -123,7 +129,7 @@ def test_update_min_stage_advances_only_when_every_task_passes():
 def test_update_mean_stages_and_sampled_episodes():
     sampler, _ = _zone_sampler()
     update = jax.jit(sampler.update)
-    at = lambda stage: sampler.init().replace(stage=jnp.int32(stage))  # noqa: E731
+    at = lambda stage: sampler.init().replace(stage=jnp.int32(stage))
     # Stage 1 (mean >= 0.95) averages tasks, not episodes: rates 1.0 and 0.9 give 0.95
     # (the per-episode mean, 10/11, would fail).
     moved = update(at(1), *_episodes([0] + [5] * 10, [1] + [1] * 9 + [0]))
@@ -143,7 +149,9 @@ def test_genz_curriculum_finishes_and_respects_the_current_assignment():
     assert sampler.num_slots == 32 and sampler.max_len == 1
     current = jnp.zeros((BATCH, 4), bool).at[:, 1].set(True)
     sample = jax.jit(jax.vmap(sampler.sample, in_axes=(0, None, 0)))
-    s, task = jax.device_get(sample(jax.random.split(jax.random.key(2), BATCH), sampler.init(), current))
+    s, task = jax.device_get(
+        sample(jax.random.split(jax.random.key(2), BATCH), sampler.init(), current)
+    )
     assert (task >= 0).all() and not s.reach[:, 0, 1].any() and not s.avoid[:, 0, 1].any()
     update = jax.jit(sampler.update)
     all_tasks = jnp.arange(32)

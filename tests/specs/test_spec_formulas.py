@@ -1,12 +1,14 @@
 """Host formula samplers: satisfiable (Spot), deterministic, and shaped as asked."""
 
+import itertools
+
 import numpy as np
 import pytest
 import spot
+from spec_spot_helpers import accepts, reach_avoid_chain, reach_only_chain
 
 from specrl_jax import specs
 from specrl_jax.specs.suites import COLOURS, LETTERS
-from spec_spot_helpers import accepts, reach_avoid_chain, reach_only_chain
 
 
 def test_printers_match_the_papers_rows():
@@ -26,7 +28,9 @@ def test_satisfiability_checker_knows_the_alphabet():
     assert not specs.is_satisfiable(unsat, LETTERS)
     assert specs.is_satisfiable(unsat, LETTERS, alphabet="all")
     assert not specs.is_satisfiable("F(blue & green)", COLOURS)
-    assert specs.is_satisfiable("F(blue_0 & green_1)", ("blue_0", "green_1"), "per_agent_zero_or_one")
+    assert specs.is_satisfiable(
+        "F(blue_0 & green_1)", ("blue_0", "green_1"), "per_agent_zero_or_one"
+    )
     with pytest.raises(ValueError, match="not among the propositions"):
         specs.is_satisfiable("F x", LETTERS)
     with pytest.raises(ValueError, match="cannot parse"):
@@ -52,10 +56,10 @@ def test_reach_avoid_samples_are_satisfiable_and_well_formed(props):
                 assert not reach & avoid and not previous & avoid and not previous & reach
                 previous = reach
             # The one-proposition-per-step walk through the reach sets is accepted.
-            walk = [sorted(reach)[0] for reach, _ in pairs]
+            walk = [min(reach) for reach, _ in pairs]
             assert accepts(text, walk, props)
             # Entering the first avoid set first is rejected.
-            assert not accepts(text, [sorted(pairs[0][1])[0]] + walk, props)
+            assert not accepts(text, [min(pairs[0][1])] + walk, props)
 
 
 @pytest.mark.parametrize("props", [LETTERS, COLOURS], ids=["letter", "zone"])
@@ -68,7 +72,7 @@ def test_reach_only_samples_are_satisfiable_and_well_formed(props):
             goals = reach_only_chain(text)
             assert len(goals) == seq_len
             assert all(len(g) == num_disj + 1 for g in goals)
-            assert all(not a & b for a, b in zip(goals, goals[1:]))
+            assert all(not a & b for a, b in itertools.pairwise(goals))
 
 
 def test_samplers_are_deterministic_given_the_seed():
@@ -143,7 +147,7 @@ def test_ltl2action_eventually_family():
             goals = reach_only_chain(str(part))
             lengths.add(len(goals))
             sizes += [len(g) for g in goals]
-            assert all(not a & b for a, b in zip(goals, goals[1:]))
+            assert all(not a & b for a, b in itertools.pairwise(goals))
     assert lengths == {1, 2, 3, 4, 5} and conj == {1, 2, 3, 4}
     assert set(sizes) == {1, 2}
     assert 0.15 < np.mean(np.array(sizes) == 2) < 0.35  # disjunction probability 0.25

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import spot
 from scipy import stats
+from spec_spot_helpers import accepts
 
 from specrl_jax import specs
 from specrl_jax.specs.suites import COLOURS, LETTERS
-from spec_spot_helpers import accepts
 
 NUM = 1500
 MAX_LEN = 4
@@ -21,7 +21,11 @@ MAX_LEN = 4
 def _reach_avoid_batch(num_props: int, seed: int):
     sample = functools.partial(
         specs.sample_reach_avoid_sequence,
-        num_props=num_props, depth=3, num_reach=(1, 2), num_avoid=(0, 3), max_len=MAX_LEN,
+        num_props=num_props,
+        depth=3,
+        num_reach=(1, 2),
+        num_avoid=(0, 3),
+        max_len=MAX_LEN,
     )
     keys = jax.random.split(jax.random.key(seed), NUM)
     return jax.device_get(jax.jit(jax.vmap(sample))(keys))
@@ -51,10 +55,18 @@ def test_reach_avoid_sequence_rules(num_props):
 def test_reach_avoid_sequence_is_deterministic_per_key():
     a, b = _reach_avoid_batch(12, 0), _reach_avoid_batch(12, 1)
     again = jax.device_get(
-        jax.jit(jax.vmap(functools.partial(
-            specs.sample_reach_avoid_sequence,
-            num_props=12, depth=3, num_reach=(1, 2), num_avoid=(0, 3), max_len=MAX_LEN,
-        )))(jax.random.split(jax.random.key(0), NUM))
+        jax.jit(
+            jax.vmap(
+                functools.partial(
+                    specs.sample_reach_avoid_sequence,
+                    num_props=12,
+                    depth=3,
+                    num_reach=(1, 2),
+                    num_avoid=(0, 3),
+                    max_len=MAX_LEN,
+                )
+            )
+        )(jax.random.split(jax.random.key(0), NUM))
     )
     assert (a.reach == again.reach).all() and (a.avoid == again.avoid).all()
     assert (a.reach != b.reach).any()
@@ -65,7 +77,7 @@ def test_reach_avoid_sequence_is_deterministic_per_key():
 def test_sampled_sequences_as_formulas_agree_with_spot(num_props, props):
     s = _reach_avoid_batch(num_props, 0)
     for i in range(60):
-        one = jax.tree_util.tree_map(lambda x: x[i], s)
+        one = jax.tree_util.tree_map(lambda x, i=i: x[i], s)
         text = specs.sequence_to_formula(one, props)
         assert specs.is_satisfiable(text, props), text
         walk = [props[int(np.flatnonzero(r)[0])] for r in one.reach[:3]]
@@ -89,7 +101,7 @@ def test_reach_stay_structure_and_formula():
     assert set(np.unique(s.avoid[:, 0].sum(-1))) == {0, 1, 2}
     assert set(np.argmax(s.reach[:, 1], -1)) == {0, 1, 2, 3}
     for i in range(20):
-        one = jax.tree_util.tree_map(lambda x: x[i], s)
+        one = jax.tree_util.tree_map(lambda x, i=i: x[i], s)
         text = specs.sequence_to_formula(one, COLOURS)
         assert specs.is_satisfiable(text, COLOURS), text
         stay = COLOURS[int(np.argmax(one.reach[1]))]

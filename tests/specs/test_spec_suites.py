@@ -5,10 +5,10 @@ from importlib import resources
 import pytest
 import spot
 import yaml
+from spec_spot_helpers import reach_avoid_chain, reach_only_chain
 
 from specrl_jax import specs
 from specrl_jax.specs import suites
-from spec_spot_helpers import reach_avoid_chain, reach_only_chain
 
 REFERENCE = "/work/shared/reference/paper_specs.yaml"
 
@@ -73,13 +73,18 @@ def test_suite_metadata_examples():
     assert specs.suite_info("arm_grippers_arm/finite/ind").env_family == "arm"
     assert len(specs.suite("genz/letter/finite")) == 8
     assert specs.list_suites("zone/") == [
-        "zone/finite/ind", "zone/finite/ood", "zone/infinite/per", "zone/infinite/rec",
+        "zone/finite/ind",
+        "zone/finite/ood",
+        "zone/infinite/per",
+        "zone/infinite/rec",
         "zone/infinite/rsp",
     ]
 
 
 def test_unknown_suite_lists_close_matches_and_known_names():
-    with pytest.raises(ValueError, match=r"Did you mean 'zone/finite/ood'.*Known suites:.*letter/finite/ind"):
+    with pytest.raises(
+        ValueError, match=r"Did you mean 'zone/finite/ood'.*Known suites:.*letter/finite/ind"
+    ):
         specs.suite("zone/finite/odd")
     with pytest.raises(TypeError):
         specs.suite(3)
