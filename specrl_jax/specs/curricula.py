@@ -176,6 +176,8 @@ class CurriculumSampler:
     """Jittable sampling and stage advancement for one curriculum over P propositions."""
 
     def __init__(self, curriculum: Curriculum, num_props: int, max_len: int | None = None):
+        if not isinstance(num_props, int) or num_props < 2:
+            raise ValueError(f"num_props must be an int >= 2, got {num_props!r}")
         self.curriculum = curriculum
         self.num_props = num_props
         self.max_len = curriculum.max_len if max_len is None else max_len

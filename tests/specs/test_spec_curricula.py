@@ -32,6 +32,11 @@ def test_curricula_data_match_the_reference():
     assert genz.stages[0].aggregate == "min" and genz.stages[0].temperature is None
     with pytest.raises(ValueError, match="Did you mean 'deepltl/zone'"):
         specs.curriculum("deepltl/zones")
+    with pytest.raises(ValueError, match="num_props"):
+        specs.CurriculumSampler(zone, num_props=1)
+    with pytest.raises(ValueError, match="num_avoid"):
+        bad = cur.Curriculum("bad", (cur.Stage((cur.ReachAvoid(1, (1, 1), (2, 0)),)),))
+        specs.CurriculumSampler(bad, num_props=4)
     with pytest.raises(ValueError, match="alone"):
         cur.Stage((cur.AllReach(1), cur.ReachStay(3, (0, 1))), (0.5, 0.5))
 
