@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+from collections.abc import Sequence
 from typing import Literal
 
 import jax
@@ -22,6 +23,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from specrl_jax.specs import sequences as seqs
+from specrl_jax.specs.formulas import sequence_to_formula
 
 
 @dataclasses.dataclass(frozen=True)
@@ -173,7 +175,11 @@ class CurriculumState:
 
 
 class CurriculumSampler:
-    """Jittable sampling and stage advancement for one curriculum over P propositions."""
+    """Jittable sampling and stage advancement for one curriculum over P propositions.
+
+    `sample` draws one sequence; `sample_batch(keys, state, current)` is it jitted over a batch
+    of keys (shared state and current assignment); `update` advances the stage.
+    """
 
     def __init__(self, curriculum: Curriculum, num_props: int, max_len: int | None = None):
         if not isinstance(num_props, int) or num_props < 2:
@@ -191,6 +197,7 @@ class CurriculumSampler:
         self.tasks = tuple(self._enumerate(stage) for stage in curriculum.stages)
         sizes = [_num_tasks(t) for t in self.tasks if t is not None]
         self.num_slots = max(sizes, default=1)
+        self.sample_batch = jax.jit(jax.vmap(self.sample, in_axes=(0, None, None)))
 
     def _check(self, sampler: Sampler) -> None:
         """Trace the key-driven sampler once: it validates the static settings."""
@@ -288,6 +295,26 @@ class CurriculumSampler:
         return seqs.reach_avoid_from_uniform(
             u, self.num_props, sampler.depth, sampler.num_reach, sampler.num_avoid, self.max_len
         )
+
+    def sample_formulas(
+        self, seed: int, stage: int, num: int, propositions: Sequence[str]
+    ) -> list[str]:
+        """Host side: `num` formulas of one stage, fixed by `seed` (`sequence_to_formula`).
+
+        For formula-conditioned methods trained on these curricula; reach-stay tasks become
+        `!K U G p`.
+        """
+        if len(propositions) != self.num_props:
+            raise ValueError(f"need {self.num_props} propositions, got {tuple(propositions)}")
+        if not 0 <= stage < len(self.curriculum.stages):
+            raise ValueError(f"stage must be in 0..{len(self.curriculum.stages) - 1}, got {stage}")
+        keys = jax.random.split(jax.random.key(seed), num)
+        state = self.init().replace(stage=jnp.int32(stage))
+        batch, _ = jax.device_get(self.sample_batch(keys, state, None))
+        return [
+            sequence_to_formula(jax.tree_util.tree_map(lambda x, i=i: x[i], batch), propositions)
+            for i in range(num)
+        ]
 
     def update(
         self,

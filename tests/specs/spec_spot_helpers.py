@@ -32,14 +32,20 @@ def reach_only_chain(text: str) -> list[frozenset[str]]:
 
 
 def reach_avoid_chain(text: str) -> list[tuple[frozenset[str], frozenset[str]]]:
-    """`!A1 U (R1 & (!A2 U ...))` -> [(R1, A1), ...] read off Spot's syntax tree."""
+    """`!A1 U (R1 & (!A2 U ...))` -> [(R1, A1), ...] read off Spot's syntax tree.
+
+    `F(R & ...)` stands for an empty avoid set.
+    """
     f = spot.formula(text)
     pairs = []
     while True:
-        assert f.kind() == spot.op_U, f"expected U, got {f}"
-        left, right = f[0], f[1]
-        assert left.kind() == spot.op_Not, f"expected a negated avoid set, got {left}"
-        avoid = ap_set(left[0])
+        if f.kind() == spot.op_F:
+            avoid, right = frozenset(), f[0]
+        else:
+            assert f.kind() == spot.op_U, f"expected U or F, got {f}"
+            left, right = f[0], f[1]
+            assert left.kind() == spot.op_Not, f"expected a negated avoid set, got {left}"
+            avoid = ap_set(left[0])
         if right.kind() != spot.op_And:
             pairs.append((ap_set(right), avoid))
             return pairs

@@ -7,10 +7,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy import stats
+from spec_spot_helpers import reach_avoid_chain
 
 from specrl_jax import specs
 from specrl_jax.specs import curricula as cur
-from specrl_jax.specs.suites import COLOURS
+from specrl_jax.specs.suites import COLOURS, LETTERS
 
 BATCH = 400
 
@@ -44,7 +45,7 @@ def test_curricula_data_match_the_reference():
 @functools.cache
 def _zone_sampler():
     sampler = specs.CurriculumSampler(specs.curriculum("deepltl/zone"), num_props=4)
-    return sampler, jax.jit(jax.vmap(sampler.sample, in_axes=(0, None)))
+    return sampler, lambda keys, state: sampler.sample_batch(keys, state, None)
 
 
 def _draw(stage, seed=0, task_success=None):
@@ -164,3 +165,17 @@ def test_genz_curriculum_finishes_and_respects_the_current_assignment():
     assert bool(done.finished) and int(done.stage) == 0
     not_done = update(sampler.init(), *_episodes(all_tasks, [1] * 31 + [0]))
     assert not bool(not_done.finished)
+
+
+def test_letter_curriculum_formulas_are_satisfiable_and_deterministic():
+    sampler = specs.CurriculumSampler(specs.curriculum("deepltl/letter"), num_props=12)
+    assert sampler.num_slots == 132
+    for stage, depth in enumerate([1, 1, 2, 3]):
+        texts = sampler.sample_formulas(seed=stage, stage=stage, num=40, propositions=LETTERS)
+        assert texts == sampler.sample_formulas(stage, stage, 40, LETTERS)
+        for text in texts:
+            assert specs.is_satisfiable(text, LETTERS), text
+            pairs = reach_avoid_chain(text)
+            assert len(pairs) == depth and all(not r & a for r, a in pairs), text
+    with pytest.raises(ValueError, match="propositions"):
+        sampler.sample_formulas(0, 0, 2, COLOURS)
