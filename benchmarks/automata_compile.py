@@ -1,0 +1,160 @@
+"""Compile every formula of the paper's spec tables: cold (empty disk cache) and from the cache.
+
+Also reports the bytes of each compiled LetterWorld spec, and with --gpu-step the cost of the
+automaton step inside a LetterWorld step at a large batch (needs specrl_jax.envs.letter).
+
+    python benchmarks/automata_compile.py [--gpu-step --batch 65536]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+import yaml
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(HERE, ".."))
+COLORS = ("blue", "green", "magenta", "yellow")
+
+
+def paper_yaml() -> str:
+    for path in (os.path.join(HERE, "..", "specrl_jax", "specs", "data", "paper_specs.yaml"),
+                 os.path.join(HERE, "..", "..", "shared", "reference", "paper_specs.yaml")):
+        if os.path.exists(path):
+            return path
+    raise FileNotFoundError("paper_specs.yaml not found")
+
+
+def _flatten(node) -> list[str]:
+    if isinstance(node, list):
+        return list(node)
+    return [f for value in node.values() for f in _flatten(value)]
+
+
+def paper_cases():
+    """(group, formulas, propositions, alphabet) for every table of the paper."""
+    from specrl_jax.automata import all_subsets, product, zero_or_one
+
+    with open(paper_yaml()) as f:
+        data = yaml.safe_load(f)
+    letters = tuple("abcdefghijkl")
+    arm = tuple(f"arm_{c}" for c in COLORS) + tuple(f"grippers_{c}" for c in COLORS)
+    agents = tuple(f"{c}_{i}" for i in range(3) for c in COLORS)
+    groups = {
+        "letter": (letters, zero_or_one(12)),
+        "letter_complexity": (letters, zero_or_one(12)),
+        "zone": (COLORS, zero_or_one(4)),
+        "arm_grippers": (COLORS, zero_or_one(4)),
+        "arm_grippers_arm": (arm, all_subsets(8)),
+        "multi_agent_zone": (agents, product(*[zero_or_one(4)] * 3)),
+    }
+    return [(g, _flatten(data[g]), props, alpha) for g, (props, alpha) in groups.items()]
+
+
+def compile_all() -> dict[str, float]:
+    from specrl_jax.automata import compile_spec
+
+    out, sizes = {}, []
+    t0 = time.perf_counter()
+    for group, formulas, props, alphabet in paper_cases():
+        for formula in formulas:
+            spec = compile_spec(formula, props, alphabet)
+            if group.startswith("letter"):
+                sizes.append(spec.nbytes)
+    out["seconds"] = time.perf_counter() - t0
+    out["count"] = sum(len(c[1]) for c in paper_cases())
+    out["letter_max_bytes"] = max(sizes)
+    out["letter_mean_bytes"] = float(np.mean(sizes))
+    return out
+
+
+def child(_args) -> None:
+    import specrl_jax  # noqa: F401  (import cost is not part of the compile figure)
+
+    res = compile_all()
+    print(f"{res['seconds']:.3f} {res['count']} {res['letter_max_bytes']} "
+          f"{res['letter_mean_bytes']:.0f}")
+
+
+def gpu_step(batch: int, steps: int) -> None:
+    import jax
+    import jax.numpy as jnp
+
+    import specrl_jax
+    from specrl_jax.automata import compile_spec, stack, step
+
+    env, params = specrl_jax.make("LetterLTL0-v0")
+    props = env.propositions
+    _, formulas, _, _ = paper_cases()[0]
+    specs = stack([compile_spec(f, props, np.asarray(env.alphabet)) for f in formulas])
+    spec_ids = jnp.arange(batch) % len(formulas)
+
+    def env_only(carry, key):
+        state = carry
+        keys = jax.random.split(key, batch)
+        actions = jax.random.randint(key, (batch,), 0, 4)
+        _, state, _, _, _, _ = jax.vmap(env.step, (0, 0, 0, None))(keys, state, actions, params)
+        return state, ()
+
+    def with_automaton(carry, key):
+        state, q = carry
+        keys = jax.random.split(key, batch)
+        actions = jax.random.randint(key, (batch,), 0, 4)
+        _, state, _, _, _, info = jax.vmap(env.step, (0, 0, 0, None))(keys, state, actions, params)
+        spec = jax.tree.map(lambda x: x[spec_ids], specs)
+        q, _, _, _ = jax.vmap(step)(spec, q, info["propositions"], jnp.zeros(batch, bool))
+        return (state, q), ()
+
+    key = jax.random.key(0)
+    _, state = jax.vmap(env.reset, (0, None))(jax.random.split(key, batch), params)
+    q0 = specs.init[spec_ids]
+    keys = jax.random.split(key, steps)
+    run_env = jax.jit(lambda s: jax.lax.scan(env_only, s, keys)[0])
+    run_both = jax.jit(lambda c: jax.lax.scan(with_automaton, c, keys)[0])
+    timings = {}
+    for name, fn, arg in (("env", run_env, state), ("env+automaton", run_both, (state, q0))):
+        jax.block_until_ready(fn(arg))
+        best = []
+        for _ in range(5):
+            t = time.perf_counter()
+            jax.block_until_ready(fn(arg))
+            best.append(time.perf_counter() - t)
+        timings[name] = min(best)
+        print(f"{name}: {batch * steps / min(best):.3e} steps/s ({min(best):.4f} s / {steps} steps)")
+    over = timings["env+automaton"] / timings["env"] - 1
+    print(f"automaton overhead: {100 * over:.1f}% (batch {batch}, {jax.devices()[0].device_kind}, "
+          f"jax {jax.__version__})")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--gpu-step", action="store_true")
+    parser.add_argument("--batch", type=int, default=65536)
+    parser.add_argument("--steps", type=int, default=100)
+    args = parser.parse_args()
+    if args.child:
+        return child(args)
+    if args.gpu_step:
+        return gpu_step(args.batch, args.steps)
+    cache = tempfile.mkdtemp(prefix="specrl_automata_")
+    env = dict(os.environ, SPECRL_JAX_CACHE_DIR=cache, JAX_PLATFORMS="cpu")
+    try:
+        for label in ("cold", "cached"):
+            res = subprocess.run([sys.executable, __file__, "--child"], env=env, check=True,
+                                 capture_output=True, text=True).stdout.split()
+            print(f"{label}: {float(res[0]):.3f} s for {res[1]} formulas; LetterWorld spec "
+                  f"bytes max {res[2]}, mean {res[3]}")
+    finally:
+        shutil.rmtree(cache, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,25 @@
+"""LTL specs as automata tensors: Spot translation, jittable stepping, reach-avoid subgoals."""
+
+from specrl_jax.automata.stepping import (
+    check_labels,
+    has_epsilon,
+    step,
+    step_checked,
+    symbol_index,
+)
+from specrl_jax.automata.tensors import CompiledSpec, compile_spec, stack
+from specrl_jax.automata.translate import all_subsets, product, zero_or_one
+
+__all__ = [
+    "CompiledSpec",
+    "all_subsets",
+    "check_labels",
+    "compile_spec",
+    "has_epsilon",
+    "product",
+    "stack",
+    "step",
+    "step_checked",
+    "symbol_index",
+    "zero_or_one",
+]

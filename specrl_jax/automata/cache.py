@@ -1,0 +1,66 @@
+"""Disk cache of compiled specs: one `.npz` per (formula, propositions, alphabet, caps, versions).
+
+Directory: `$SPECRL_JAX_CACHE_DIR/automata`, default `~/.cache/specrl_jax/automata`. Writes are
+atomic (temporary file + rename), and an unreadable entry is treated as a miss.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+import zipfile
+from collections.abc import Sequence
+
+import numpy as np
+import spot
+
+import specrl_jax
+
+#: bump when the compiled layout or the construction changes
+FORMAT_VERSION = 1
+
+
+def cache_dir() -> str:
+    root = os.environ.get("SPECRL_JAX_CACHE_DIR", os.path.join("~", ".cache", "specrl_jax"))
+    return os.path.join(os.path.expanduser(root), "automata")
+
+
+def cache_key(formula: str, propositions: Sequence[str], alphabet: np.ndarray, **options) -> str:
+    """Hex digest naming an entry; any change of input, option or library version changes it."""
+    payload = {
+        "formula": formula,
+        "propositions": list(propositions),
+        "alphabet_shape": list(alphabet.shape),
+        "alphabet": np.packbits(alphabet.astype(bool)).tobytes().hex(),
+        "options": options,
+        "spot": spot.version(),
+        "numpy": np.__version__,
+        "specrl_jax": specrl_jax.__version__,
+        "format": FORMAT_VERSION,
+    }
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+
+
+def load(key: str) -> dict[str, np.ndarray] | None:
+    """The arrays stored under `key`, or None (missing or unreadable)."""
+    path = os.path.join(cache_dir(), key + ".npz")
+    try:
+        with np.load(path) as data:
+            return {name: data[name] for name in data.files}
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError):
+        return None
+
+
+def save(key: str, arrays: dict[str, np.ndarray]) -> None:
+    """Store `arrays` under `key` (silently skipped if the directory is not writable)."""
+    directory = cache_dir()
+    try:
+        os.makedirs(directory, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp")
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **arrays)
+        os.replace(tmp, os.path.join(directory, key + ".npz"))
+    except OSError:
+        return

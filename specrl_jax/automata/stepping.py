@@ -1,0 +1,99 @@
+"""Stepping a compiled spec inside `jit`: label -> alphabet symbol -> next automaton state.
+
+All functions are pure and take one unstacked `CompiledSpec`; `jax.vmap` them over a stacked
+batch (`stack`) together with states and labels.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.experimental import checkify
+
+from specrl_jax.automata.tensors import CompiledSpec
+
+
+def symbol_index(spec: CompiledSpec, props: jax.Array) -> jax.Array:
+    """The alphabet row equal to a label.
+
+    Args:
+        spec: a compiled spec.
+        props: bool[P] the propositions that hold (`info["propositions"]`).
+
+    Returns:
+        int32[], the matching row of `spec.alphabet`, or -1 if the label is not in the alphabet
+        (use `step_checked` or `check_labels` to turn that into an error).
+    """
+    match = jnp.all(spec.alphabet == props.astype(bool)[None, :], axis=-1)
+    return jnp.where(match.any(), jnp.argmax(match), -1).astype(jnp.int32)
+
+
+def has_epsilon(spec: CompiledSpec, q: jax.Array) -> jax.Array:
+    """bool[]: state `q` has at least one epsilon transition (mask for an epsilon action)."""
+    return spec.epsilon[q, 0] >= 0
+
+
+def step(
+    spec: CompiledSpec, q: jax.Array, props: jax.Array, take_epsilon: jax.Array
+) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """One automaton step.
+
+    Args:
+        spec: a compiled spec.
+        q: int32[] current state.
+        props: bool[P] the label after the env step (ignored on an epsilon step).
+        take_epsilon: bool[] (True = epsilon slot 0) or int32[] (slot to take, < 0 = none).
+            An epsilon step consumes no label; requesting a slot the state lacks leaves q.
+
+    Returns:
+        (q_next int32[], accepted bool[] (a Buchi-accepting transition was taken),
+         success bool[], violation bool[]) where success / violation are flags of q_next.
+        A label outside the alphabet leaves q unchanged in this unchecked variant.
+    """
+    take = jnp.asarray(take_epsilon)
+    slot = jnp.where(take, 0, -1) if take.dtype == jnp.bool_ else take.astype(jnp.int32)
+    symbol = symbol_index(spec, props)
+    is_eps = slot >= 0
+    eps_target = spec.epsilon[q, jnp.clip(slot, 0, spec.epsilon.shape[-1] - 1)]
+    eps_next = jnp.where(eps_target >= 0, eps_target, q)
+    sym = jnp.maximum(symbol, 0)
+    known = symbol >= 0
+    label_next = jnp.where(known, spec.delta[q, sym], q)
+    q_next = jnp.where(is_eps, eps_next, label_next).astype(jnp.int32)
+    accepted = ~is_eps & known & spec.accepting[q, sym]
+    return q_next, accepted, spec.success[q_next], spec.violation[q_next]
+
+
+def step_checked(
+    spec: CompiledSpec, q: jax.Array, props: jax.Array, take_epsilon: jax.Array
+) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """`step` that raises (through `jax.experimental.checkify`) on a label outside the alphabet.
+
+    Use as `checkify.checkify(jax.jit(step_checked))(...)` (then `err.throw()`), or eagerly.
+    """
+    checkify.check(
+        jnp.asarray(take_epsilon).astype(bool) | (symbol_index(spec, props) >= 0),
+        "label {} is not an assignment of the spec's alphabet",
+        props.astype(jnp.int32),
+    )
+    return step(spec, q, props, take_epsilon)
+
+
+def check_labels(spec: CompiledSpec, props: np.ndarray) -> None:
+    """Host-side check that every label (`bool[..., P]`) is a row of the spec's alphabet.
+
+    Raises:
+        ValueError: naming the first label that is not.
+    """
+    labels = np.asarray(props).astype(bool)
+    alphabet = np.asarray(spec.alphabet)
+    if labels.shape[-1] != alphabet.shape[-1]:
+        raise ValueError(f"labels have {labels.shape[-1]} propositions, the spec "
+                         f"{alphabet.shape[-1]}")
+    flat = labels.reshape(-1, labels.shape[-1])
+    found = (flat[:, None, :] == alphabet[None, :, :]).all(-1).any(-1)
+    if not found.all():
+        bad = flat[np.argmin(found)].astype(int).tolist()
+        raise ValueError(f"label {bad} is not an assignment of the spec's alphabet "
+                         f"({alphabet.shape[0]} assignments)")

@@ -1,0 +1,194 @@
+"""Compiled specs: an automaton and its subgoals as a pytree of arrays, and batching by padding."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from specrl_jax.automata import cache, subgoals, translate
+
+DEFAULT_MAX_SEQUENCES = 32
+DEFAULT_MAX_LENGTH = 24
+MAX_DEFAULT_ALPHABET_PROPS = 10
+
+
+@struct.dataclass
+class CompiledSpec:
+    """One LTL spec over an alphabet of A assignments of P propositions (arrays only).
+
+    Axes: S automaton states, A alphabet symbols, E epsilon slots, G one-step subgoals,
+    C candidate sequences, L sequence steps. Stacked specs carry a leading batch axis.
+
+    Attributes:
+        delta: int32[S, A] next state per alphabet symbol.
+        accepting: bool[S, A] the transition q -a-> delta[q, a] is Buchi-accepting.
+        epsilon: int32[S, E] epsilon successors, -1 padded.
+        success: bool[S] every continuation satisfies the formula.
+        violation: bool[S] no continuation satisfies it.
+        init: int32[] initial state.
+        is_finite: bool[] co-safe: the episode ends on success.
+        alphabet: bool[A, P] the assignment of each symbol.
+        subgoal_reach, subgoal_avoid: bool[S, G, A]; subgoal_target: int32[S, G] (-1 unused);
+        subgoal_valid: bool[S, G]: one-step reach-avoid subgoals.
+        seq_reach, seq_avoid: bool[S, C, L, A]; seq_epsilon: bool[S, C, L];
+        seq_epsilon_slot: int32[S, C, L] (epsilon edge to take, -1 if not an epsilon step);
+        seq_length: int32[S, C]; seq_valid: bool[S, C]: DeepLTL's candidate sequences.
+    """
+
+    delta: jnp.ndarray
+    accepting: jnp.ndarray
+    epsilon: jnp.ndarray
+    success: jnp.ndarray
+    violation: jnp.ndarray
+    init: jnp.ndarray
+    is_finite: jnp.ndarray
+    alphabet: jnp.ndarray
+    subgoal_reach: jnp.ndarray
+    subgoal_avoid: jnp.ndarray
+    subgoal_target: jnp.ndarray
+    subgoal_valid: jnp.ndarray
+    seq_reach: jnp.ndarray
+    seq_avoid: jnp.ndarray
+    seq_epsilon: jnp.ndarray
+    seq_epsilon_slot: jnp.ndarray
+    seq_length: jnp.ndarray
+    seq_valid: jnp.ndarray
+
+    @property
+    def num_states(self) -> int:
+        return self.delta.shape[-2]
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of all arrays together."""
+        return sum(int(np.asarray(x).nbytes) for x in self.__dict__.values())
+
+
+FIELDS = tuple(CompiledSpec.__dataclass_fields__)
+
+
+def compile_spec(
+    formula: str,
+    propositions: Sequence[str],
+    alphabet: np.ndarray | None = None,
+    *,
+    max_sequences: int = DEFAULT_MAX_SEQUENCES,
+    max_length: int = DEFAULT_MAX_LENGTH,
+    use_cache: bool = True,
+) -> CompiledSpec:
+    """Translate an LTL formula (Spot syntax) into a `CompiledSpec` over `alphabet`.
+
+    Args:
+        formula: e.g. "!(a | b) U (c & F d)"; `=>`/`<=>` are read as `->`/`<->`.
+        propositions: the env's proposition names, in `info["propositions"]` order.
+        alphabet: bool[A, P], the assignments the world can produce (`env.alphabet`); default
+            all 2**P subsets (only for P <= 10).
+        max_sequences, max_length: caps C and L of the candidate sequences (see
+            `subgoals.candidate_sequences` for what happens past them).
+        use_cache: read and write the disk cache (`cache.cache_dir()`).
+
+    Raises:
+        ValueError / TypeError: bad formula, proposition, alphabet, or an unsatisfiable formula.
+    """
+    propositions = tuple(propositions)
+    if len(set(propositions)) != len(propositions) or not propositions:
+        raise ValueError(f"propositions must be distinct names, got {propositions}")
+    if alphabet is None:
+        if len(propositions) > MAX_DEFAULT_ALPHABET_PROPS:
+            raise ValueError(f"{len(propositions)} propositions: pass the env's alphabet (all "
+                             f"subsets are only the default up to {MAX_DEFAULT_ALPHABET_PROPS})")
+        alphabet = translate.all_subsets(len(propositions))
+    alphabet = translate.check_alphabet(alphabet, propositions)
+    if max_sequences < 1 or max_length < 1:
+        raise ValueError(f"max_sequences and max_length must be >= 1, got "
+                         f"{max_sequences}, {max_length}")
+    key = cache.cache_key(formula if isinstance(formula, str) else repr(formula), propositions,
+                          alphabet, max_sequences=max_sequences, max_length=max_length)
+    arrays = cache.load(key) if use_cache else None
+    if arrays is None or set(arrays) != set(FIELDS):
+        arrays = _build(formula, propositions, alphabet, max_sequences, max_length)
+        if use_cache:
+            cache.save(key, arrays)
+    # device_put is a plain copy; jnp.asarray would dispatch (and compile) one op per shape
+    return CompiledSpec(**jax.device_put({name: np.asarray(arrays[name]) for name in FIELDS}))
+
+
+def _build(formula, propositions, alphabet, max_sequences, max_length) -> dict[str, np.ndarray]:
+    aut = translate.translate(formula, propositions, alphabet)
+    goals = subgoals.one_step_subgoals(aut)
+    seqs = subgoals.candidate_sequences(aut, max_sequences, max_length)
+    return {
+        "delta": aut.delta.astype(np.int32),
+        "accepting": aut.accepting,
+        "epsilon": aut.epsilon.astype(np.int32),
+        "success": aut.success,
+        "violation": aut.violation,
+        "init": np.int32(aut.init),
+        "is_finite": np.bool_(aut.is_finite),
+        "alphabet": alphabet,
+        "subgoal_reach": goals.reach,
+        "subgoal_avoid": goals.avoid,
+        "subgoal_target": goals.target,
+        "subgoal_valid": goals.valid,
+        "seq_reach": seqs.reach,
+        "seq_avoid": seqs.avoid,
+        "seq_epsilon": seqs.epsilon,
+        "seq_epsilon_slot": seqs.epsilon_slot,
+        "seq_length": seqs.length,
+        "seq_valid": seqs.valid,
+    }
+
+
+# per field: which axes are padded, to which common size (by axis letter), and with what value
+_PAD = {
+    "delta": ("S", -1), "accepting": ("S", False), "epsilon": ("SE", -1),
+    "success": ("S", False), "violation": ("S", False), "init": ("", 0),
+    "is_finite": ("", False), "alphabet": ("", False),
+    "subgoal_reach": ("SG", False), "subgoal_avoid": ("SG", False),
+    "subgoal_target": ("SG", -1), "subgoal_valid": ("SG", False),
+    "seq_reach": ("SCL", False), "seq_avoid": ("SCL", False), "seq_epsilon": ("SCL", False),
+    "seq_epsilon_slot": ("SCL", -1), "seq_length": ("SC", 0), "seq_valid": ("SC", False),
+}
+_AXIS = {"S": ("delta", 0), "E": ("epsilon", 1), "G": ("subgoal_target", 1),
+         "C": ("seq_length", 1), "L": ("seq_epsilon", 2)}
+
+
+def stack(specs: Sequence[CompiledSpec]) -> CompiledSpec:
+    """Pad specs to common S, E, G, C, L and stack them along a new leading axis.
+
+    Padded states are non-accepting self-loops with every flag False; padded epsilon slots are
+    -1, padded subgoals and sequences are invalid. All specs must share one alphabet.
+    """
+    specs = list(specs)
+    if not specs:
+        raise ValueError("stack needs at least one CompiledSpec")
+    alphabet = np.asarray(specs[0].alphabet)
+    for i, spec in enumerate(specs):
+        if not isinstance(spec, CompiledSpec) or spec.delta.ndim != 2:
+            raise TypeError(f"stack takes unstacked CompiledSpecs; item {i} is not one")
+        if not np.array_equal(np.asarray(spec.alphabet), alphabet):
+            raise ValueError(f"spec {i} has a different alphabet from spec 0; specs stacked "
+                             "together must be compiled over the same alphabet")
+    size = {ax: max(np.shape(getattr(s, f))[d] for s in specs) for ax, (f, d) in _AXIS.items()}
+    out = {}
+    for name in FIELDS:
+        axes, fill = _PAD[name]
+        padded = []
+        for spec in specs:
+            arr = np.asarray(getattr(spec, name))
+            widths = [(0, 0)] * arr.ndim
+            for ax in axes:
+                d = _AXIS[ax][1]
+                widths[d] = (0, size[ax] - arr.shape[d])
+            if axes:
+                arr = np.pad(arr, widths, constant_values=fill)
+            if name == "delta":
+                extra = np.arange(spec.num_states, size["S"])
+                arr[extra] = extra[:, None]
+            padded.append(arr)
+        out[name] = np.stack(padded)
+    return CompiledSpec(**jax.device_put(out))
