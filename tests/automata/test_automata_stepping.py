@@ -1,0 +1,113 @@
+"""Stepping: batched equals unbatched, padding changes nothing, checked mode, epsilon moves."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.experimental import checkify
+
+from specrl_jax.automata import (
+    check_labels,
+    compile_spec,
+    has_epsilon,
+    stack,
+    step,
+    step_checked,
+    symbol_index,
+    zero_or_one,
+)
+
+PROPS = ("a", "b", "c", "d")
+FORMULAS = ["!a U (b & F c)", "GF a & GF b & G !d", "FG a & F(b & F c)", "FG a | GF b",
+            "(F b) & (!(c | d) U (a & F b))"]
+
+
+def _rollout(spec, syms, eps):
+    """Unbatched reference: Python loop over `step`, one spec at a time."""
+    q, out = spec.init, []
+    for sym, e in zip(syms, eps):
+        q, acc, succ, viol = step(spec, q, spec.alphabet[sym], e)
+        out.append((int(q), bool(acc), bool(succ), bool(viol)))
+    return out
+
+
+def test_batched_padded_stepping_equals_unbatched():
+    alphabet = zero_or_one(4)
+    specs = [compile_spec(f, PROPS, alphabet) for f in FORMULAS]
+    batch = stack(specs)
+    assert batch.delta.shape[0] == len(FORMULAS)
+    rng = np.random.default_rng(0)
+    steps = 12
+    syms = rng.integers(5, size=(len(specs), steps))
+    eps = rng.random((len(specs), steps)) < 0.2
+
+    @jax.jit
+    def run(batch, syms, eps):
+        def body(q, inp):
+            sym, e = inp
+            props = jax.vmap(lambda a, s: a[s])(batch.alphabet, sym)
+            q, acc, succ, viol = jax.vmap(step)(batch, q, props, e)
+            return q, (q, acc, succ, viol)
+
+        return jax.lax.scan(body, batch.init, (syms.T, eps.T))[1]
+
+    got = [np.asarray(x).T for x in run(batch, jnp.asarray(syms), jnp.asarray(eps))]
+    for k, spec in enumerate(specs):
+        expect = _rollout(spec, syms[k], eps[k])
+        assert [tuple(x[k, t].item() for x in got) for t in range(steps)] == expect
+
+
+def test_padding_states_are_inert():
+    specs = [compile_spec(f, PROPS, zero_or_one(4)) for f in FORMULAS]
+    batch = stack(specs)
+    small = int(np.argmin([s.num_states for s in specs]))
+    padded = jax.tree.map(lambda x: x[small], batch)
+    extra = np.arange(specs[small].num_states, batch.delta.shape[1])
+    assert len(extra) > 0
+    delta = np.asarray(padded.delta)
+    assert (delta[extra] == extra[:, None]).all()
+    for field in ("accepting", "success", "violation", "seq_valid", "subgoal_valid"):
+        assert not np.asarray(getattr(padded, field))[extra].any()
+    assert (np.asarray(padded.epsilon)[extra] == -1).all()
+    # real states never lead into padding
+    assert (delta[: specs[small].num_states] < specs[small].num_states).all()
+
+
+def test_stack_rejects_mixed_alphabets():
+    a = compile_spec("F a", PROPS, zero_or_one(4))
+    b = compile_spec("F a", ("a", "b", "c", "e"), zero_or_one(4)[::-1].copy())
+    with pytest.raises(ValueError, match="different alphabet"):
+        stack([a, b])
+
+
+def test_symbol_index_and_checked_mode():
+    spec = compile_spec("F a", PROPS, zero_or_one(4))
+    for row in range(5):
+        assert int(symbol_index(spec, spec.alphabet[row])) == row
+    two = jnp.array([True, True, False, False])
+    assert int(symbol_index(spec, two)) == -1
+    err, _ = checkify.checkify(jax.jit(step_checked))(spec, spec.init, two, False)
+    with pytest.raises(checkify.JaxRuntimeError, match="not an assignment"):
+        err.throw()
+    err, out = checkify.checkify(jax.jit(step_checked))(spec, spec.init, spec.alphabet[1], False)
+    err.throw()
+    assert bool(out[2])  # F a: success after a
+    with pytest.raises(ValueError, match=r"label \[1, 1, 0, 0\]"):
+        check_labels(spec, np.array([[0, 1, 0, 0], [1, 1, 0, 0]], dtype=bool))
+
+
+def test_epsilon_moves_consume_no_label():
+    spec = compile_spec("FG a", PROPS, zero_or_one(4))
+    q0 = spec.init
+    assert bool(has_epsilon(spec, q0))
+    nothing, a, b = spec.alphabet[0], spec.alphabet[1], spec.alphabet[2]
+    q1, acc, _, viol = step(spec, q0, b, True)  # the label is ignored on an epsilon step
+    assert int(q1) != int(q0) and not bool(acc) and not bool(viol)
+    assert not bool(has_epsilon(spec, q1))
+    q2, acc, _, viol = step(spec, q1, a, False)
+    assert int(q2) == int(q1) and bool(acc) and not bool(viol)
+    _, acc, _, viol = step(spec, q1, nothing, False)
+    assert bool(viol) and not bool(acc)
+    # epsilon requested where there is none: no move
+    q3, acc, _, _ = step(spec, q1, a, jnp.int32(0))
+    assert int(q3) == int(q1) and not bool(acc)
