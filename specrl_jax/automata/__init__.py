@@ -5,6 +5,7 @@ from specrl_jax.automata.stepping import (
     has_epsilon,
     step,
     step_checked,
+    step_in_batch,
     symbol_index,
 )
 from specrl_jax.automata.tensors import CompiledSpec, compile_spec, stack
@@ -20,6 +21,7 @@ __all__ = [
     "stack",
     "step",
     "step_checked",
+    "step_in_batch",
     "symbol_index",
     "zero_or_one",
 ]

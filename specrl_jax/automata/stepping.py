@@ -65,6 +65,37 @@ def step(
     return q_next, accepted, spec.success[q_next], spec.violation[q_next]
 
 
+def step_in_batch(
+    specs: CompiledSpec,
+    spec_id: jax.Array,
+    q: jax.Array,
+    props: jax.Array,
+    take_epsilon: jax.Array,
+) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """`step` on spec `spec_id` of a stacked batch, reading only the entries it needs.
+
+    Equal to `step(jax.tree.map(lambda x: x[spec_id], specs), q, props, take_epsilon)`, but
+    under `vmap` over environments it gathers single entries instead of whole tables.
+
+    Args:
+        specs: stacked specs (`stack`), one shared alphabet.
+        spec_id: int32[] which spec.
+        q, props, take_epsilon: as in `step`.
+    """
+    take = jnp.asarray(take_epsilon)
+    slot = jnp.where(take, 0, -1) if take.dtype == jnp.bool_ else take.astype(jnp.int32)
+    match = jnp.all(specs.alphabet[0] == props.astype(bool)[None, :], axis=-1)
+    known = match.any()
+    sym = jnp.argmax(match)
+    is_eps = slot >= 0
+    eps_target = specs.epsilon[spec_id, q, jnp.clip(slot, 0, specs.epsilon.shape[-1] - 1)]
+    eps_next = jnp.where(eps_target >= 0, eps_target, q)
+    label_next = jnp.where(known, specs.delta[spec_id, q, sym], q)
+    q_next = jnp.where(is_eps, eps_next, label_next).astype(jnp.int32)
+    accepted = ~is_eps & known & specs.accepting[spec_id, q, sym]
+    return q_next, accepted, specs.success[spec_id, q_next], specs.violation[spec_id, q_next]
+
+
 def step_checked(
     spec: CompiledSpec, q: jax.Array, props: jax.Array, take_epsilon: jax.Array
 ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:

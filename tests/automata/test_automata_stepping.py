@@ -13,6 +13,7 @@ from specrl_jax.automata import (
     stack,
     step,
     step_checked,
+    step_in_batch,
     symbol_index,
     zero_or_one,
 )
@@ -51,10 +52,24 @@ def test_batched_padded_stepping_equals_unbatched():
 
         return jax.lax.scan(body, batch.init, (syms.T, eps.T))[1]
 
+    @jax.jit
+    def run_in_batch(batch, syms, eps):
+        ids = jnp.arange(len(specs))
+
+        def body(q, inp):
+            sym, e = inp
+            props = batch.alphabet[0][sym]
+            out = jax.vmap(step_in_batch, (None, 0, 0, 0, 0))(batch, ids, q, props, e)
+            return out[0], out
+
+        return jax.lax.scan(body, batch.init, (syms.T, eps.T))[1]
+
     got = [np.asarray(x).T for x in run(batch, jnp.asarray(syms), jnp.asarray(eps))]
+    got_ids = [np.asarray(x).T for x in run_in_batch(batch, jnp.asarray(syms), jnp.asarray(eps))]
     for k, spec in enumerate(specs):
         expect = _rollout(spec, syms[k], eps[k])
         assert [tuple(x[k, t].item() for x in got) for t in range(steps)] == expect
+        assert [tuple(x[k, t].item() for x in got_ids) for t in range(steps)] == expect
 
 
 def test_padding_states_are_inert():
