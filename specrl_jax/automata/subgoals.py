@@ -77,7 +77,7 @@ class _Transition:
     """A group of symbols from one state to one target with one acceptance flag, or an epsilon
     edge. Compared by identity: one object per (source, target, accepting, slot)."""
 
-    __slots__ = ("source", "target", "accepting", "slot", "symbols", "dead")
+    __slots__ = ("accepting", "dead", "slot", "source", "symbols", "target")
 
     def __init__(self, source, target, accepting, slot, symbols, dead):
         self.source, self.target, self.accepting = source, target, accepting

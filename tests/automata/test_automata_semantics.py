@@ -3,11 +3,10 @@
 import numpy as np
 import pytest
 import spot
-
-from specrl_jax.automata import all_subsets, compile_spec, zero_or_one
-
 from automata_lasso import check_formulas
 from automata_paper import paper_groups
+
+from specrl_jax.automata import all_subsets, compile_spec, zero_or_one
 
 
 @pytest.mark.parametrize("group", ["letter", "letter_complexity", "zone", "arm_grippers_arm",
