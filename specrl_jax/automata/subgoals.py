@@ -181,6 +181,19 @@ class _Search:
         return paths
 
 
+def _search_within_budget(aut: Automaton, q: int, max_length: int) -> tuple[list[_Path], bool]:
+    """Paths from q up to max_length transitions. If that search exceeds the budget, the search
+    is repeated with half the depth cap; if that one fits, every path up to that length is
+    listed, otherwise the paths the first search found before the budget ran out."""
+    search = _Search(aut, max_length, SEARCH_BUDGET)
+    paths = search.dfs(q, [], {}, None)
+    if search.calls < SEARCH_BUDGET:
+        return paths, True
+    shallow = _Search(aut, max_length // 2, SEARCH_BUDGET)
+    found = shallow.dfs(q, [], {}, None)
+    return (found if shallow.calls < SEARCH_BUDGET else paths), False
+
+
 def _to_sequence(path: _Path, num_loops: int) -> list[tuple[_Transition, frozenset]]:
     steps = [(t, frozenset().union(*(a.symbols for a in avoid))) for t, avoid in path.steps]
     return steps[: path.loop_index] + steps[path.loop_index :] * num_loops
@@ -198,15 +211,15 @@ def candidate_sequences(aut: Automaton, max_sequences: int, max_length: int) -> 
         if aut.violation[q] or (aut.is_finite and aut.success[q]):
             per_state.append([])
             continue
-        search = _Search(aut, max_length, SEARCH_BUDGET)
-        seqs = [_to_sequence(p, num_loops) for p in search.dfs(q, [], {}, None)]
-        cut += search.calls >= SEARCH_BUDGET
+        paths, complete = _search_within_budget(aut, q, max_length)
+        seqs = [_to_sequence(p, num_loops) for p in paths]
+        cut += not complete
         kept = sorted((s for s in seqs if 0 < len(s) <= max_length), key=len)[:max_sequences]
         dropped += len(seqs) - len(kept)
         per_state.append(kept)
     if cut:
-        warnings.warn(f"candidate search stopped after {SEARCH_BUDGET} steps at {cut} states; "
-                      "their candidate lists are incomplete", stacklevel=3)
+        warnings.warn(f"candidate search over {SEARCH_BUDGET} steps at {cut} states; their "
+                      "candidate lists are incomplete (see docs/automata.md)", stacklevel=3)
     if dropped:
         warnings.warn(f"{dropped} candidate sequences dropped (over max_length={max_length} "
                       f"or max_sequences={max_sequences} per state)", stacklevel=3)
