@@ -52,9 +52,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def enable_compilation_cache() -> None:
-    """JAX's persistent compilation cache (`$SPECRL_JAX_CACHE`, default ~/.cache/specrl_jax)."""
+    """JAX's persistent compilation cache (`$SPECRL_JAX_CACHE`, default ~/.cache/specrl_jax),
+    unless one is configured already."""
     import jax
 
+    if jax.config.jax_compilation_cache_dir:
+        return
     default = os.path.join(os.path.expanduser("~"), ".cache", "specrl_jax", "jax")
     jax.config.update("jax_compilation_cache_dir", os.environ.get("SPECRL_JAX_CACHE", default))
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
@@ -222,6 +225,80 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
                    "violation" if states.violation[i, -1] else "timeout")
         titles.append(f"{formulas[index[i]]}\n{outcome} after {steps - 1} steps")
     return report.plot_trajectories(np.stack(letters), paths, titles, env.propositions, path)
+
+
+@command(
+    "train",
+    "Train a baseline (GenZ-LTL or DeepLTL) with the shared PPO; writes a run directory.",
+    arg("--method", required=True, choices=("genz", "deepltl")),
+    arg("--env", default="LetterLTL0-v0"),
+    arg("--seeds", type=int, default=1, help="independent runs trained side by side"),
+    arg("--seed", type=int, default=0),
+    arg("--total-steps", type=int, default=None,
+        help="env interactions per run (default 15M on an accelerator, 1M on a CPU)"),
+    arg("--num-envs", type=int, default=None),
+    arg("--num-steps", type=int, default=None),
+    arg("--map-bank", type=int, default=65536, help="maps in the fast-reset bank (0: exact resets)"),
+    arg("--out", default=None, help="run directory (default runs/<method>); resumes if present"),
+    arg("--eval-episodes", type=int, default=0, help="then evaluate on the LetterWorld suites"),
+)
+def train_command(args: argparse.Namespace) -> int:
+    enable_compilation_cache()
+    import jax
+
+    from specrl_jax.baselines import experiment
+    from specrl_jax.eval import report
+
+    platform = jax.devices()[0].platform
+    total = args.total_steps or (15_000_000 if platform != "cpu" else 1_000_000)
+    overrides = experiment.default_overrides(platform, total)
+    overrides.update({k: v for k, v in (("num_envs", args.num_envs), ("num_steps", args.num_steps)) if v})
+    out = Path(args.out or f"runs/{args.method}")
+    params, summary = experiment.train(args.method, args.env, out, overrides, args.seeds, args.seed,
+                                       map_bank=args.map_bank or None)
+    print(f"trained {args.seeds} x {summary['env_steps_per_seed']:,} steps, "
+          f"{summary['env_steps_per_s']:,.0f} env-steps/s; run directory {out}")
+    if args.eval_episodes > 0:
+        results = experiment.evaluate(args.method, args.env, params, experiment.LETTER_SUITES,
+                                      args.eval_episodes)
+        report.write_json(out / "eval.json", results, {"train": summary})
+        print(report.markdown_tables(results))
+    return 0
+
+
+@command(
+    "run",
+    "The main demo: train GenZ-LTL on LetterWorld, evaluate on the finite suites (IND, OOD), "
+    "print the paper-format table (a few minutes on a CPU; the paper's 15M steps on a GPU).",
+    arg("--total-steps", type=int, default=None, help="default 15M on an accelerator, 200k on a CPU"),
+    arg("--seeds", type=int, default=None, help="default 5 on an accelerator, 1 on a CPU"),
+    arg("--episodes", type=int, default=None, help="per spec and seed; default 100 (GPU) / 20 (CPU)"),
+    arg("--out", default="runs/run"),
+)
+def run_command(args: argparse.Namespace) -> int:
+    enable_compilation_cache()
+    import jax
+
+    from specrl_jax.baselines import experiment
+    from specrl_jax.eval import report
+
+    gpu = jax.devices()[0].platform != "cpu"
+    total = args.total_steps or (15_000_000 if gpu else 200_000)
+    seeds = args.seeds or (5 if gpu else 1)
+    episodes = args.episodes or (100 if gpu else 20)
+    out = Path(args.out)
+    overrides = experiment.default_overrides("gpu" if gpu else "cpu", total)
+    if not gpu:  # a short budget: fewer epochs per update keeps it to minutes on two cores
+        overrides.update(num_envs=32, num_steps=64, update_epochs=10)
+    params, summary = experiment.train("genz", "LetterLTL0-v0", out, overrides, seeds,
+                                       map_bank=65536 if gpu else 4096)
+    print(f"trained GenZ-LTL: {seeds} x {summary['env_steps_per_seed']:,} steps at "
+          f"{summary['env_steps_per_s']:,.0f} env-steps/s")
+    suites = ("letter/finite/ind", "letter/finite/ood")
+    results = experiment.evaluate("genz", "LetterLTL0-v0", params, suites, episodes)
+    report.write_json(out / "results.json", results, {"train": summary, "episodes": episodes})
+    print(report.markdown_tables(results))
+    return 0
 
 
 if __name__ == "__main__":

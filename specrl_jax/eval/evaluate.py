@@ -136,10 +136,13 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
 
 
 def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, params: Any,
-                   num_seeds: int, episodes_per_seed: int, horizon: int | None = None
-                   ) -> Callable[[Any, jax.Array], EpisodeTable]:
-    """A jitted `fn(policy_params, seeds int32[num_seeds]) -> EpisodeTable` (device arrays,
-    fields `[num_seeds, K, episodes_per_seed]`); compile once, call many times."""
+                   episodes_per_seed: int, horizon: int | None = None,
+                   sequential_seeds: bool = False) -> Callable[[Any, jax.Array], EpisodeTable]:
+    """A jitted `fn(policy_params, seeds uint32[num_seeds]) -> EpisodeTable` (device arrays,
+    fields `[num_seeds, K, episodes_per_seed]`); compile once, call many times.
+
+    `sequential_seeds` runs the seeds one after the other (`lax.map`) instead of side by side,
+    dividing peak memory by `num_seeds`, for runs too large for one device."""
     policy = as_stateful(policy)
     horizon = int(params.max_steps) if horizon is None else int(horizon)
     num_specs = task.num_specs
@@ -151,11 +154,13 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
 
     per_episode = jax.vmap(episode, in_axes=(None, None, None, 0))
     per_spec = jax.vmap(per_episode, in_axes=(None, None, 0, None))
-    per_seed = jax.vmap(per_spec, in_axes=(None, 0, None, None))
 
     @jax.jit
     def evaluator(policy_params, seeds):
-        return per_seed(policy_params, seeds, jnp.arange(num_specs), jnp.arange(episodes_per_seed))
+        def one_seed(seed):
+            return per_spec(policy_params, seed, jnp.arange(num_specs), jnp.arange(episodes_per_seed))
+
+        return jax.lax.map(one_seed, seeds) if sequential_seeds else jax.vmap(one_seed)(seeds)
 
     return evaluator
 
@@ -192,7 +197,7 @@ def evaluate(policy: Callable[..., Any] | StatefulPolicy, env_id_or_env: Any, sp
     stacked, names = prepare_specs(env, specs)
     task = TaskEnv(env, stacked)
     horizon = int(params.max_steps) if horizon is None else int(horizon)
-    evaluator = make_evaluator(policy, task, params, len(seeds), episodes_per_seed, horizon)
+    evaluator = make_evaluator(policy, task, params, episodes_per_seed, horizon)
     table = jax.device_get(evaluator(policy_params, jnp.asarray(seeds, jnp.uint32)))
     return EvalResult(
         env_id=env_id,

@@ -89,9 +89,16 @@ def distance_table(spec: Any, letters: jax.Array) -> jax.Array:
 def plan_action(spec: Any, letters: jax.Array, dist: jax.Array, q: jax.Array,
                 agent: jax.Array) -> jax.Array:
     """int32[]: the first action of a shortest path to a goal transition from (q, agent)."""
-    q_next, goal, bad = _transitions(spec, symbol_grid(letters, spec.alphabet))
-    costs = _action_costs(dist, q_next, goal, bad)[q, :, agent[0], agent[1]]  # [4]
-    return jnp.argmin(costs).astype(jnp.int32)
+    n = letters.shape[0]
+    targets = (agent[None, :] + jnp.asarray(MOVES)) % n  # [4, 2]
+    target_letters = letters[targets[:, 0], targets[:, 1]]
+    symbols = symbol_grid(target_letters[None], spec.alphabet)[0]  # [4]
+    q_next = spec.delta[q, symbols]
+    goal = spec.accepting[q, symbols] | spec.success[q_next]
+    bad = spec.violation[q_next] & ~goal
+    dist_next = dist[q_next, targets[:, 0], targets[:, 1]]
+    cost = jnp.where(goal, 1, jnp.minimum(dist_next + 1, UNREACHABLE))
+    return jnp.argmin(jnp.where(bad, 2 * UNREACHABLE, cost)).astype(jnp.int32)
 
 
 def _check_letter_world(env: Any) -> None:

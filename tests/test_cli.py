@@ -1,0 +1,59 @@
+"""The `specrl-jax` command line end to end on a tiny configuration, and its errors."""
+
+import json
+
+import pytest
+
+from specrl_jax import cli
+
+
+def test_eval_end_to_end(tmp_path, capsys):
+    code = cli.main(["eval", "--env", "LetterLTL0-v0", "--policy", "oracle",
+                     "--suite", "letter/complexity_paper/reach_avoid/seq2_disj0",
+                     "--seeds", "2", "--episodes", "3", "--horizon", "30", "--trajectories", "2",
+                     "--out", str(tmp_path), "--no-progress"])
+    assert code == 0
+    data = json.loads((tmp_path / "eval.json").read_text())
+    (entry,) = data["results"]
+    assert entry["seeds"] == [1, 2] and entry["horizon"] == 30 and len(entry["specs"]) == 3
+    suite = entry["summary"]["groups"]["letter/complexity_paper/reach_avoid/seq2_disj0"]
+    assert suite["eta_s_mean"] == 1.0 and suite["eta_v_mean"] == 0.0  # the planner is optimal
+    assert 2 <= suite["mu_mean"] <= 30
+    table = (tmp_path / "eval.md").read_text()
+    assert "| LetterLTL0-v0 | letter/complexity_paper/reach_avoid/seq2_disj0 | 1.00±0.00 |" in table
+    assert table in capsys.readouterr().out
+    for plot in ("complexity.png", "trajectories.png"):
+        assert (tmp_path / plot).stat().st_size > 5_000
+
+
+def test_listings(capsys):
+    assert cli.main(["envs"]) == 0
+    assert "LetterLTL0-v0" in capsys.readouterr().out
+    assert cli.main(["specs", "--prefix", "letter/finite", "--formulas"]) == 0
+    out = capsys.readouterr().out
+    assert "letter/finite/ind" in out and "!(a | b) U (c & (!(d | e) U f))" in out
+    assert "zone/" not in out
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"--policy": "greedy"}, "unknown policy 'greedy'; known policies: random, oracle"),
+    ({"--suite": "letter/finite/nope"}, "unknown suite 'letter/finite/nope'"),
+    ({"--suite": "zone/finite/ind"}, "over propositions"),
+    ({"--env": "LetterLTL9-v0"}, "unknown env ID 'LetterLTL9-v0'"),
+    ({"--seeds": "0"}, "--seeds and --episodes must be >= 1"),
+])
+def test_clear_errors(change, message, tmp_path, capsys):
+    options = {"--env": "LetterLTL0-v0", "--policy": "random", "--suite": "letter/finite/ind",
+               "--seeds": "1", "--out": str(tmp_path)}
+    options.update(change)
+    argv = ["eval", "--no-progress"] + [x for pair in options.items() for x in pair]
+    assert cli.main(argv) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_oracle_needs_letter_world():
+    class Arena:
+        action_space = None
+
+    with pytest.raises(ValueError, match="needs LetterWorld"):
+        cli.make_policy("oracle", Arena())
