@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import spot
 from automata_lasso import check_formulas
-from automata_paper import paper_groups
+from automata_paper import paper_finite_formulas, paper_groups
 
 from specrl_jax.automata import all_subsets, compile_spec, zero_or_one
 
@@ -15,6 +15,15 @@ def test_paper_formulas_match_spot(group):
     formulas, props, alphabet = paper_groups()[group]
     compiled, unsat = check_formulas(formulas, props, alphabet, np.random.default_rng(0))
     assert compiled == len(formulas) and unsat == 0
+
+
+def test_paper_horizons_match_the_tables():
+    finite = paper_finite_formulas()
+    for formulas, props, alphabet in paper_groups().values():
+        for text in formulas:
+            spec = compile_spec(text, props, alphabet)
+            assert bool(spec.is_finite) == (text in finite), text
+            assert not bool(spec.success[spec.init]) and not bool(spec.violation[spec.init])
 
 
 def test_arm_grippers_lists_the_zone_formulas():
