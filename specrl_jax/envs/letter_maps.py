@@ -226,11 +226,11 @@ def letters_from_bank(key: jax.Array, bank: jax.Array, spec: MapSpec) -> jax.Arr
     key_entry, key_symmetry, key_labels = jax.random.split(key, 3)
     entry = jnp.asarray(bank)[jax.random.randint(key_entry, (), 0, bank.shape[0])]
     flips = jax.random.bernoulli(key_symmetry, 0.5, (3,))
-    r, c = jnp.arange(n)[:, None], jnp.arange(n)[None, :]
-    r, c = jnp.where(flips[0], c, r), jnp.where(flips[0], r, c)
-    r = jnp.where(flips[1], (n - r) % n, r)
-    c = jnp.where(flips[2], (n - c) % n, c)
-    ordinal = entry[r, c].astype(jnp.int32)
+    entry = jnp.where(flips[0], entry.T, entry)
+    # r -> -r mod N (and c -> -c mod N) as static slices: row 0 stays, the rest reverses.
+    entry = jnp.where(flips[1], jnp.concatenate([entry[:1], entry[:0:-1]], axis=0), entry)
+    entry = jnp.where(flips[2], jnp.concatenate([entry[:, :1], entry[:, :0:-1]], axis=1), entry)
+    ordinal = entry.astype(jnp.int32)
     # A uniform permutation as the ranks of i.i.d. keys (ties broken by index): no sort needed.
     u = jax.random.bits(key_labels, (k,), jnp.uint32)
     index = jnp.arange(k)
