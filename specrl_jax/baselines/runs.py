@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 from flax import serialization
 
@@ -39,8 +40,20 @@ def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerSta
     return restored.replace(key=jax.random.wrap_key_data(restored.key))
 
 
-def _scalars(metrics: dict[str, Any], i: int) -> dict[str, float]:
-    return {k: float(np.asarray(v)[i]) for k, v in metrics.items()}
+def _rows(metrics: dict[str, Any], num: int, summarise: Callable) -> list[dict[str, float]]:
+    """Metrics `[seeds, num]` -> one row per update: the mean over seeds of each (summarised)
+    scalar, plus `success_rate_seeds` when a success rate is present."""
+    out = []
+    for i in range(num):
+        per_seed = [
+            summarise({k: float(np.asarray(v)[s, i]) for k, v in metrics.items()})
+            for s in range(np.asarray(next(iter(metrics.values()))).shape[0])
+        ]
+        row = {k: float(np.mean([r[k] for r in per_seed])) for k in per_seed[0]}
+        if "success_rate" in per_seed[0]:
+            row["success_rate_seeds"] = [r["success_rate"] for r in per_seed]
+        out.append(row)
+    return out
 
 
 def train_in_run_dir(
@@ -48,46 +61,51 @@ def train_in_run_dir(
     key: jax.Array,
     run_dir: str | os.PathLike,
     chunk_updates: int = 10,
+    num_seeds: int = 1,
     extra_config: dict[str, Any] | None = None,
     summarise: Callable[[dict[str, float]], dict[str, float]] = lambda m: m,
     log: Callable[[str], None] = print,
     max_updates: int | None = None,
 ) -> RunnerState:
-    """Train `trainer` in chunks of `chunk_updates`, resuming from `run_dir` when it holds a checkpoint.
+    """Train `num_seeds` runs of `trainer` side by side (`vmap`) in chunks of `chunk_updates`,
+    resuming from `run_dir` when it holds a checkpoint.
 
-    `summarise` derives extra scalars per update (e.g. rates); `max_updates` stops early (tests).
-    Returns the final runner state.
+    `summarise` derives extra scalars per update and seed (e.g. rates); `max_updates` stops
+    early. Returns the final runner state, with a leading seed axis `[num_seeds]`.
     """
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     cfg = trainer.config
-    config = {"ppo": dataclasses.asdict(cfg), **(extra_config or {})}
+    config = {"ppo": dataclasses.asdict(cfg), "num_seeds": num_seeds, **(extra_config or {})}
     (run_dir / "config.json").write_text(json.dumps(config, indent=2, default=str))
-    runner = jax.jit(trainer.init)(key)
+    # Seeds are initialised one by one: a vmapped orthogonal init (batched QR) hangs on XLA:CPU.
+    init = jax.jit(trainer.init)
+    seeds = [init(k) for k in jax.random.split(key, num_seeds)]
+    runner = jax.tree.map(lambda *xs: jnp.stack(xs), *seeds)
     if (run_dir / CHECKPOINT).exists():
         runner = load_checkpoint(run_dir / CHECKPOINT, runner)
-        log(f"resumed at update {int(runner.update)} from {run_dir / CHECKPOINT}")
-    updates = jax.jit(trainer.updates, static_argnums=1, donate_argnums=0)
+        log(f"resumed at update {int(runner.update[0])} from {run_dir / CHECKPOINT}")
+    updates = jax.jit(jax.vmap(trainer.updates, in_axes=(0, None)), static_argnums=1, donate_argnums=0)
     total = cfg.num_updates if max_updates is None else min(cfg.num_updates, max_updates)
     start_wall = time.perf_counter()
-    done_at_start = int(runner.update)
+    done_at_start = done = int(runner.update[0])
     with open(run_dir / "metrics.jsonl", "a") as out:
-        while int(runner.update) < total:
-            n = min(chunk_updates, total - int(runner.update))
+        while done < total:
+            n = min(chunk_updates, total - done)
             runner, metrics = updates(runner, n)
-            metrics = jax.device_get(metrics)
+            rows = _rows(jax.device_get(metrics), n, summarise)
+            done += n
             elapsed = time.perf_counter() - start_wall
-            for i in range(n):
-                update = int(runner.update) - n + i + 1
-                row = summarise(_scalars(metrics, i))
+            for i, row in enumerate(rows):
+                update = done - n + i + 1
                 row.update(update=update, env_steps=update * cfg.batch_size, wall_s=elapsed)
                 out.write(json.dumps(row) + "\n")
             out.flush()
-            steps = (int(runner.update) - done_at_start) * cfg.batch_size
+            rate = (done - done_at_start) * cfg.batch_size * num_seeds / elapsed
+            shown = {k: v for k, v in rows[-1].items() if isinstance(v, float) and k not in ("env_steps", "wall_s")}
             log(
-                f"update {int(runner.update)}/{total}  env steps {int(runner.update) * cfg.batch_size:,}  "
-                f"{steps / elapsed:,.0f} steps/s  "
-                + "  ".join(f"{k} {v:.3f}" for k, v in row.items() if k not in ("update", "env_steps", "wall_s"))
+                f"update {done}/{total}  env steps {done * cfg.batch_size:,} x {num_seeds} seeds  "
+                f"{rate:,.0f} steps/s  " + "  ".join(f"{k} {v:.3g}" for k, v in shown.items())
             )
             save_checkpoint(run_dir / CHECKPOINT, runner)
     plot_curve(run_dir)

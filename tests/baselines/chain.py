@@ -63,4 +63,4 @@ class ChainMethod:
         return jnp.zeros((), jnp.float32)
 
     def update_task_params(self, task_params, stats):
-        return task_params + stats["successes"]
+        return task_params + jnp.sum(stats["successes"])

@@ -140,10 +140,11 @@ def test_kl_early_stop_limits_epochs():
 def test_resume_gives_identical_continuation(tmp_path):
     trainer = make_train(TINY, ChainMethod())
     key = jax.random.key(3)
-    straight = runs.train_in_run_dir(trainer, key, tmp_path / "a", chunk_updates=2, log=lambda s: None)
-    runs.train_in_run_dir(trainer, key, tmp_path / "b", chunk_updates=2, max_updates=2, log=lambda s: None)
-    resumed = runs.train_in_run_dir(trainer, key, tmp_path / "b", chunk_updates=2, log=lambda s: None)
-    assert int(resumed.update) == int(straight.update) == TINY.num_updates
+    options = dict(chunk_updates=2, num_seeds=2, log=lambda s: None)
+    straight = runs.train_in_run_dir(trainer, key, tmp_path / "a", **options)
+    runs.train_in_run_dir(trainer, key, tmp_path / "b", max_updates=2, **options)
+    resumed = runs.train_in_run_dir(trainer, key, tmp_path / "b", **options)
+    assert int(resumed.update[0]) == int(straight.update[0]) == TINY.num_updates
     for a, b in zip(jax.tree.leaves(straight.params), jax.tree.leaves(resumed.params)):
         np.testing.assert_array_equal(a, b)
     rows_a, rows_b = runs.read_metrics(tmp_path / "a"), runs.read_metrics(tmp_path / "b")

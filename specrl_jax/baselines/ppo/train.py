@@ -85,7 +85,8 @@ class Method(Protocol):
 
     def init_task_params(self) -> Any: ...
 
-    def update_task_params(self, task_params: Any, stats: dict[str, jax.Array]) -> Any: ...
+    def update_task_params(self, task_params: Any, stats: dict[str, jax.Array]) -> Any:
+        """The next task distribution from the rollout's per-step stats `[T, B]`."""
 
 
 @struct.dataclass
@@ -160,8 +161,8 @@ class Trainer:
         # EPOCHS OF MINIBATCH UPDATES
         params, opt_state, loss_metrics, epochs = self._epochs(runner.params, runner.opt_state, batch, key_epochs)
 
-        stats = jax.tree.map(jnp.sum, traj.stats)
-        task_params = self.method.update_task_params(runner.task_params, stats)
+        task_params = self.method.update_task_params(runner.task_params, traj.stats)
+        stats = {k: jnp.sum(v) for k, v in traj.stats.items() if not k.startswith("_")}
         runner = RunnerState(params, opt_state, env_state, obs, task_params, key, runner.update + 1)
         metrics = {**stats, **loss_metrics, "epochs": epochs, "reward": jnp.mean(traj.reward)}
         return runner, metrics

@@ -1,0 +1,77 @@
+"""Reproduce GenZ-LTL and DeepLTL on LetterWorld: train (seeds side by side), evaluate on the
+paper's suites, write the results JSON, Markdown tables, curves and timings.
+
+Example (GPU, the full protocol):
+    python benchmarks/train_letter.py --methods genz deepltl --seeds 5 --total-steps 15000000 \
+        --episodes 100 --out /tmp/letter
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import jax
+
+from specrl_jax.baselines import experiment
+from specrl_jax.eval import report
+
+COMPLEXITY = tuple(
+    f"letter/complexity_paper/{kind}/seq{n}_disj{d}"
+    for kind in ("reach_only", "reach_avoid") for n in (2, 4) for d in (0, 1)
+)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--methods", nargs="+", default=["genz", "deepltl"], choices=list(experiment.METHODS))
+    parser.add_argument("--env", default="LetterLTL0-v0")
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--total-steps", type=int, default=15_000_000)
+    parser.add_argument("--num-envs", type=int, default=None)
+    parser.add_argument("--num-steps", type=int, default=None)
+    parser.add_argument("--minibatches", type=int, default=None)
+    parser.add_argument("--epochs", type=int, default=None, help="max epochs per update")
+    parser.add_argument("--map-bank", type=int, default=65536)
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--chunk", type=int, default=20, help="updates per progress line / checkpoint")
+    parser.add_argument("--no-eval", action="store_true")
+    parser.add_argument("--complexity", action="store_true", help="also the paper's complexity grid")
+    parser.add_argument("--out", required=True)
+    args = parser.parse_args()
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    device = jax.devices()[0]
+    overrides = experiment.default_overrides(device.platform, args.total_steps)
+    for flag, name in (("num_envs", "num_envs"), ("num_steps", "num_steps"),
+                       ("minibatches", "num_minibatches"), ("epochs", "update_epochs")):
+        if getattr(args, flag) is not None:
+            overrides[name] = getattr(args, flag)
+    suites = experiment.LETTER_SUITES + (COMPLEXITY if args.complexity else ())
+    results, summaries = [], {}
+    for method in args.methods:
+        params, summary = experiment.train(
+            method, args.env, out / method, overrides, args.seeds, map_bank=args.map_bank,
+            chunk_updates=args.chunk,
+        )
+        summaries[method] = summary
+        print(json.dumps(summary["time_to_success"]), flush=True)
+        if not args.no_eval:
+            start = time.perf_counter()
+            results += experiment.evaluate(method, args.env, params, suites, args.episodes)
+            summary["eval_wall_s"] = time.perf_counter() - start
+    config = {"args": vars(args), "device": str(device), "training": summaries}
+    (out / "training.json").write_text(json.dumps(config, indent=1, default=str))
+    if results:
+        report.write_json(out / "results.json", results, config)
+        tables = report.markdown_tables(results)
+        (out / "tables.md").write_text(tables)
+        print(tables, flush=True)
+        report.plot_complexity(results, out / "complexity.png")
+
+
+if __name__ == "__main__":
+    main()

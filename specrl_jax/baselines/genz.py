@@ -1,0 +1,231 @@
+"""GenZ-LTL (Guo et al., NeurIPS'25): one reach-avoid subgoal at a time, safety as a hard constraint.
+
+The policy sees no specification encoding: the subgoal is written into the observation, the
+proposition channels reduced to one image (reach cells 1.0, avoid cells 0.5, agent 0.2). It
+trains with RCO (`losses.rco_loss`): a reward critic, a reachability-cost critic and a
+state-dependent Lagrange multiplier, on the uniform distribution of one-step subgoals (reach one
+letter, avoid 0-3 others); +1 on reach, then a fresh subgoal with the return cut there; cost +1
+and termination on an avoided letter, -1 otherwise. At test time (`make_policy`) the automaton
+state's candidate subgoals are scored by `V_r - lam V_c` and the best is followed until the
+state changes or a step budget passes without progress.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+
+from specrl_jax.baselines.ppo.networks import MLP, DiscreteHead, LetterCNN, PolicyOutput, critic
+from specrl_jax.baselines.ppo.rollout import StepResult
+from specrl_jax.baselines.ppo.train import PPOConfig
+from specrl_jax.eval.policy import StatefulPolicy
+from specrl_jax.specs import genz_tasks, sample_genz_subgoal
+
+REACH, AVOID, AGENT = 1.0, 0.5, 0.2
+
+
+def reduce_observation(obs: dict[str, jax.Array], reach: jax.Array, avoid: jax.Array) -> jax.Array:
+    """LetterWorld obs + subgoal -> float32[V, V, 1] (GenZ-LTL's `pre_process_obs_letter`).
+
+    Args:
+        obs: `ap` uint8[V, V, P] letter channels, `ego` uint8[V, V, 1] agent channel.
+        reach, avoid: bool[P] proposition masks.
+    """
+    ap = obs["ap"].astype(bool)
+    reach_map = jnp.any(ap & reach, axis=-1)
+    avoid_map = jnp.any(ap & avoid, axis=-1)
+    image = jnp.where(reach_map, REACH, jnp.where(avoid_map, AVOID, 0.0))
+    image = jnp.where((image == 0) & obs["ego"][..., 0].astype(bool), AGENT, image)
+    return image[..., None].astype(jnp.float32)
+
+
+class GenZNetwork(nn.Module):
+    """CNN on the reduced image; actor [64, 64, 64] ReLU; reward critic [64, 64] Softplus with a
+    Softplus output (V_r >= 0); cost critic [64, 64] Tanh; multiplier net [64, 64] Softplus, >= 0."""
+
+    num_actions: int = 4
+
+    @nn.compact
+    def __call__(self, image: jax.Array) -> PolicyOutput:
+        emb = LetterCNN()(image)
+        pi = DiscreteHead(self.num_actions)(MLP((64, 64, 64), "relu")(emb))
+        value = critic((64, 64), "softplus", final="softplus")(emb)[..., 0]
+        cost_value = critic((64, 64), "tanh")(emb)[..., 0]
+        multiplier = critic((64, 64), "softplus", final="softplus")(emb)[..., 0]
+        return PolicyOutput(pi, value, cost_value, multiplier)
+
+
+class GenZState(NamedTuple):
+    world: Any
+    reach: jax.Array  # bool[P]
+    avoid: jax.Array  # bool[P]
+
+
+@dataclasses.dataclass(frozen=True)
+class GenZTrainEnv:
+    """LetterWorld with GenZ-LTL's subgoal wrapper (`SequenceSafetyWrapper`), auto-resetting."""
+
+    world: Any
+    params: Any
+    max_avoid: int = 3
+    cost_step: float = -1.0
+
+    def _subgoal(self, key: jax.Array, current: jax.Array) -> tuple[jax.Array, jax.Array]:
+        tasks = genz_tasks(self.world.num_propositions, self.max_avoid)
+        sequence, _ = sample_genz_subgoal(key, tasks, current)
+        return sequence.reach[0], sequence.avoid[0]
+
+    def reset(self, key: jax.Array, task_params: Any = None) -> tuple[jax.Array, GenZState]:
+        key_world, key_goal = jax.random.split(key)
+        obs, world = self.world.reset(key_world, self.params)
+        reach, avoid = self._subgoal(key_goal, jnp.zeros(self.world.num_propositions, bool))
+        return reduce_observation(obs, reach, avoid), GenZState(world, reach, avoid)
+
+    def step(self, key: jax.Array, state: GenZState, action: jax.Array, task_params: Any = None):
+        key_step, key_goal, key_reset = jax.random.split(key, 3)
+        obs, world, _, _, truncated, info = self.world.step(key_step, state.world, action, self.params)
+        props = info["propositions"]
+        violated = jnp.any(props & state.avoid)
+        reached = jnp.any(props & state.reach) & ~violated
+        truncated = truncated & ~violated
+        final_obs = reduce_observation(obs, state.reach, state.avoid)
+        reach, avoid = self._subgoal(key_goal, props)
+        reach = jnp.where(reached, reach, state.reach)
+        avoid = jnp.where(reached, avoid, state.avoid)
+        next_obs, next_state = reduce_observation(obs, reach, avoid), GenZState(world, reach, avoid)
+        obs_reset, state_reset = self.reset(key_reset)
+        done = violated | truncated
+        next_obs, next_state = jax.tree.map(
+            lambda a, b: jnp.where(done, a, b), (obs_reset, state_reset), (next_obs, next_state)
+        )
+        f32 = lambda x: x.astype(jnp.float32)  # noqa: E731
+        stats = {
+            "episodes": f32(done),
+            "reaches": f32(reached),
+            "violations": f32(violated),
+            "timeouts": f32(truncated),
+        }
+        result = StepResult(
+            reward=f32(reached),
+            cost=jnp.where(violated, 1.0, self.cost_step),
+            terminated=violated,
+            truncated=truncated,
+            cut=reached,
+            final_obs=final_obs,
+            stats=stats,
+        )
+        return next_obs, next_state, result
+
+
+@dataclasses.dataclass(frozen=True)
+class GenZ:
+    """The GenZ-LTL method for the shared trainer (LetterWorld)."""
+
+    env: GenZTrainEnv
+    network: GenZNetwork = GenZNetwork()
+
+    def init_task_params(self) -> Any:
+        return None
+
+    def update_task_params(self, task_params: Any, stats: dict[str, jax.Array]) -> Any:
+        return task_params
+
+
+def make_method(world: Any, params: Any) -> GenZ:
+    return GenZ(GenZTrainEnv(world, params), GenZNetwork(world.action_space.n))
+
+
+def summarise(row: dict[str, float]) -> dict[str, float]:
+    """Per-update rates from summed counts: subgoals reached / violated / timed out."""
+    ended = row["reaches"] + row["violations"] + row["timeouts"]
+    return {
+        **row,
+        "success_rate": row["reaches"] / max(ended, 1.0),
+        "violation_rate": row["violations"] / max(ended, 1.0),
+    }
+
+
+def ppo_config(**overrides: Any) -> PPOConfig:
+    """GenZ-LTL's LetterWorld settings (RCO, c_v 1.0, up to 80 epochs with KL stop 0.015)."""
+    base = dict(
+        num_envs=16, num_steps=128, num_minibatches=8, update_epochs=80, target_kl=0.015,
+        loss="rco", vf_coef=1.0, ent_coef=0.01, gamma=0.94, gae_lambda=0.95, lr=3e-4,
+    )
+    return PPOConfig(**{**base, **overrides})
+
+
+# ---------------------------------------------------------------------------------------------
+# Test time: subgoal choice on a compiled automaton
+
+
+class PlanCarry(NamedTuple):
+    q: jax.Array  # int32[], automaton state the plan was made in (-1: none yet)
+    reach: jax.Array  # bool[P], the chosen single-proposition reach
+    avoid: jax.Array  # bool[P]
+    candidate: jax.Array  # int32[], index of the chosen (subgoal, proposition) candidate
+    infeasible: jax.Array  # bool[G * P], candidates given up in this automaton state
+    steps: jax.Array  # int32[], steps since the plan was made
+    stuck: jax.Array  # bool[], no candidate left
+
+
+def candidate_masks(spec: Any, q: jax.Array, alphabet: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The candidates of automaton state `q`: one per (subgoal g, proposition p) with p's
+    single-letter symbol in g's reach set and not in its avoid set.
+
+    Returns `(reach bool[G*P, P], avoid bool[G*P, P], valid bool[G*P])`. The avoid set keeps the
+    letters of g's avoid symbols; an avoided empty assignment cannot be drawn in the image and is
+    dropped (docs/fidelity.md).
+    """
+    num_props = alphabet.shape[1]
+    single = alphabet.sum(-1) == 1  # [A]
+    reach_sym = spec.subgoal_reach[q] & single  # [G, A]
+    avoid_sym = spec.subgoal_avoid[q]
+    reach_props = jnp.any(reach_sym[..., None] & alphabet, axis=1)  # [G, P]
+    avoid_props = jnp.any((avoid_sym & single)[..., None] & alphabet, axis=1)  # [G, P]
+    eye = jnp.eye(num_props, dtype=bool)
+    reach = jnp.broadcast_to(eye, (reach_props.shape[0], num_props, num_props))  # [G, P, P]
+    avoid = jnp.broadcast_to(avoid_props[:, None, :], reach.shape)
+    valid = spec.subgoal_valid[q][:, None] & reach_props & ~avoid_props
+    return reach.reshape(-1, num_props), avoid.reshape(-1, num_props), valid.reshape(-1)
+
+
+def make_policy(network: nn.Module, alphabet: jax.Array, deterministic: bool = True,
+                replan_steps: int = 300) -> StatefulPolicy:
+    """GenZ-LTL's test-time agent as a `StatefulPolicy` for `specrl_jax.eval.evaluate`.
+
+    Plans at the first step and whenever the automaton state changes: the candidate maximising
+    `V_r - clip(lam, 0.01, 5) V_c` on its reduced observation. After `replan_steps` steps in one
+    plan the candidate is marked infeasible and the next best is taken. Actions are the policy's
+    mode (`deterministic`, the reference's setting) or samples.
+    """
+    alphabet = jnp.asarray(alphabet, bool)
+
+    def plan(params, obs, task_state, infeasible):
+        reach, avoid, valid = candidate_masks(task_state.spec, task_state.q, alphabet)
+        images = jax.vmap(reduce_observation, in_axes=(None, 0, 0))(obs, reach, avoid)
+        out = network.apply(params, images)
+        score = out.value - jnp.clip(out.multiplier, 0.01, 5.0) * out.cost_value
+        allowed = valid & ~infeasible
+        best = jnp.argmax(jnp.where(allowed, score, -jnp.inf))
+        return PlanCarry(task_state.q, reach[best], avoid[best], best.astype(jnp.int32), infeasible,
+                         jnp.zeros((), jnp.int32), ~jnp.any(allowed))
+
+    def init(params, obs, task_state, key):
+        num = task_state.spec.subgoal_valid.shape[1] * alphabet.shape[1]
+        return plan(params, obs, task_state, jnp.zeros(num, bool))
+
+    def apply(params, obs, task_state, carry: PlanCarry, key):
+        moved = task_state.q != carry.q
+        timed_out = carry.steps >= replan_steps
+        infeasible = jnp.where(moved, False, carry.infeasible)
+        infeasible = infeasible.at[carry.candidate].set(infeasible[carry.candidate] | (timed_out & ~moved))
+        carry = jax.lax.cond(moved | timed_out, lambda: plan(params, obs, task_state, infeasible), lambda: carry)
+        out = network.apply(params, reduce_observation(obs, carry.reach, carry.avoid))
+        action = out.pi.mode() if deterministic else out.pi.sample(key)
+        return action, carry._replace(steps=carry.steps + 1)
+
+    return StatefulPolicy(init, apply)
