@@ -15,8 +15,9 @@ import argparse
 import dataclasses
 import os
 import sys
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 Command = Callable[[argparse.Namespace], int]
 COMMANDS: dict[str, tuple[str, tuple[tuple[tuple, dict], ...], Command]] = {}

@@ -5,9 +5,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from eval.tiny_world import (
+    TinyParams,
+    TinyWorld,
+    persistence_spec,
+    reach_avoid_spec,
+    recurrence_spec,
+    stack_specs,
+)
 
-from eval.tiny_world import (TinyParams, TinyWorld, persistence_spec, reach_avoid_spec,
-                             recurrence_spec, stack_specs)
 from specrl_jax.tasks import TaskEnv
 
 UP, DOWN, LEFT, RIGHT = 0, 1, 2, 3
@@ -64,7 +70,7 @@ def test_reach_avoid_success_reward_and_auto_reset(task, step):
 
 
 def test_violation_ends_with_minus_one(task, step):
-    (s1, r1, t1, _, i1), = play(step, start(task, 0), [DOWN])
+    (_, r1, t1, _, i1), = play(step, start(task, 0), [DOWN])
     assert (r1, t1) == (-1.0, True)
     assert bool(i1["violation"]) and not bool(i1["success"])
 
@@ -124,7 +130,7 @@ def test_batched_step_equals_single_steps(task, step):
     step_keys = jax.random.split(jax.random.key(6), 4)
     batched = jax.jit(jax.vmap(task.step, in_axes=(0, 0, 0, None)))(step_keys, states, actions, PARAMS)
     for i in range(4):
-        state_i = jax.tree.map(lambda x: x[i], states)
+        state_i = jax.tree.map(lambda x, i=i: x[i], states)
         single = step(step_keys[i], state_i, actions[i], PARAMS)
         for got, want in zip(jax.tree.leaves(single[1:5]), jax.tree.leaves(batched[1:5])):
             np.testing.assert_array_equal(np.asarray(got), np.asarray(want)[i])
@@ -137,3 +143,16 @@ def test_rejects_specs_of_another_alphabet():
         TaskEnv(TinyWorld(), stack_specs([wrong]))
     with pytest.raises(ValueError, match="stacked"):
         TaskEnv(TinyWorld(), spec)
+
+
+def test_spot_compiled_spec_behaves_as_the_hand_built_one():
+    from specrl_jax import automata
+
+    world = TinyWorld()
+    compiled = automata.compile_spec("!c U (a & F b)", world.propositions, alphabet=world.alphabet)
+    task = TaskEnv(world, automata.stack([compiled]))
+    step = jax.jit(task.step_task)
+    (_, r1, t1, _, _), (_, r2, t2, _, i2) = play(step, start(task, 0), [RIGHT, RIGHT])
+    assert (r1, t1, r2, t2, bool(i2["success"])) == (1.0, False, 1.0, True, True)
+    (_, r, t, _, info), = play(step, start(task, 0), [DOWN])
+    assert (r, t, bool(info["violation"])) == (-1.0, True, True)

@@ -12,16 +12,17 @@ world's termination, or the horizon).
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from specrl_jax import automata
+from specrl_jax.envs.wrappers import select_tree
 from specrl_jax.eval.metrics import EpisodeTable, per_seed_metrics, summarize
 from specrl_jax.eval.policy import StatefulPolicy, as_stateful, split_action
-from specrl_jax.envs.wrappers import select_tree
 from specrl_jax.tasks import TaskEnv, TaskState
 
 
@@ -41,7 +42,7 @@ class EvalResult:
         """`{metric: float64[num_seeds, num_specs]}`."""
         return per_seed_metrics(self.table)
 
-    def select(self, indices: Sequence[int]) -> "EvalResult":
+    def select(self, indices: Sequence[int]) -> EvalResult:
         """The same result restricted to the specs at `indices` (e.g. one suite of a run)."""
         indices = list(indices)
         return dataclasses.replace(

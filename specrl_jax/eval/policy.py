@@ -15,7 +15,8 @@ tensors `spec` and `spec_index`, the step count `time`, `steps_in_q` and the wor
 
 from __future__ import annotations
 
-from typing import Any, Callable, NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp

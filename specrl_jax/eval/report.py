@@ -9,12 +9,14 @@ where no episode qualified, e.g. `mu` without any success).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
 import math
 import platform
 import re
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -207,7 +209,7 @@ def plot_trajectories(letters: np.ndarray, paths: Sequence[np.ndarray], titles: 
                 ax.add_patch(plt.Rectangle((c - 0.5, r - 0.5), 1, 1, color="0.85"))
                 ax.text(c, r, propositions[letter], ha="center", va="center", fontsize=12)
         cells = np.asarray(cells, float)
-        for start, end in zip(cells[:-1], cells[1:]):
+        for start, end in itertools.pairwise(cells):
             move = end - start
             if np.abs(move).max() > 1:  # wrapped across the torus: half a step off each edge
                 move = -np.sign(move)

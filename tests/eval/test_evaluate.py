@@ -4,9 +4,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from eval.tiny_world import (
+    TinyParams,
+    TinyWorld,
+    persistence_spec,
+    reach_avoid_spec,
+    recurrence_spec,
+    stack_specs,
+)
 
-from eval.tiny_world import (TinyParams, TinyWorld, persistence_spec, reach_avoid_spec,
-                             recurrence_spec, stack_specs)
 from specrl_jax.eval.evaluate import evaluate, record_episodes
 from specrl_jax.eval.policy import StatefulPolicy, random_policy
 from specrl_jax.tasks import TaskEnv

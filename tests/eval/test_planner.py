@@ -6,9 +6,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from eval.tiny_world import MOVES, TinyParams, TinyWorld, hand_spec, reach_avoid_spec, stack_specs
 
-from eval.tiny_world import (MOVES, TinyParams, TinyWorld, hand_spec, reach_avoid_spec,
-                             stack_specs)
 from specrl_jax.eval.evaluate import evaluate, record_episodes
 from specrl_jax.eval.planner import UNREACHABLE, distance_table, oracle_policy
 from specrl_jax.tasks import TaskEnv
@@ -86,7 +85,7 @@ def test_oracle_succeeds_in_the_fewest_steps():
     states, alive = record_episodes(oracle_policy(env), task, params, keys, index)
     for i in range(6):
         letters = np.asarray(states.env_state.letters[i, 0])
-        spec = jax.tree.map(lambda x: x[int(index[i])], specs)
+        spec = jax.tree.map(lambda x, k=int(index[i]): x[k], specs)
         assert int(alive[i].sum()) - 1 == bfs_steps(spec, letters, 0, (0, 0))
         assert bool(states.success[i, -1])
 

@@ -6,8 +6,13 @@ import numpy as np
 
 from specrl_jax.eval.evaluate import EvalResult
 from specrl_jax.eval.metrics import EpisodeTable
-from specrl_jax.eval.report import (SuiteResult, markdown_tables, plot_complexity,
-                                    plot_trajectories, write_json)
+from specrl_jax.eval.report import (
+    SuiteResult,
+    markdown_tables,
+    plot_complexity,
+    plot_trajectories,
+    write_json,
+)
 
 
 def result(success, violation, steps, accepting, finite=True) -> EvalResult:
@@ -28,8 +33,8 @@ def test_markdown_rows_env_by_suite_and_columns_method_by_metric():
                SuiteResult("Tiny-v0", "infinite/b", "random", LOOPS)]
     finite, infinite = markdown_tables(results).strip().split("\n\n")
     assert finite.splitlines() == [
-        "| env | suite | oracle eta_s | oracle eta_v | oracle mu | random eta_s | random eta_v "
-        "| random mu |",
+        ("| env | suite | oracle eta_s | oracle eta_v | oracle mu | random eta_s | random eta_v "
+         "| random mu |"),
         "|---|---|---|---|---|---|---|---|",
         "| Tiny-v0 | finite/a | 0.75±0.25 | 0.25±0.25 | 6.50±1.50 | 0.00±0.00 | 0.25±0.25 | - |",
     ]

@@ -124,7 +124,7 @@ def hand_spec(delta, accepting_into=(), accepting_edges=(), epsilon=None, succes
     eps = np.full((NUM_STATES, 1), -1, np.int32)
     for q, target in (epsilon or {}).items():
         eps[q, 0] = target
-    mask = lambda idx: np.isin(np.arange(NUM_STATES), list(idx))  # noqa: E731
+    mask = lambda idx: np.isin(np.arange(NUM_STATES), list(idx))
     return HandSpec(jnp.asarray(full), jnp.asarray(accepting), jnp.asarray(eps),
                     jnp.asarray(mask(success)), jnp.asarray(mask(violation)),
                     jnp.asarray(0, jnp.int32), jnp.asarray(finite), jnp.asarray(ALPHABET))
