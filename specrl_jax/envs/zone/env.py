@@ -39,6 +39,10 @@ class ZoneState:
     time: jax.Array  # int32, env steps since reset
 
 
+def _has_no_constraints(model: mjx.Model) -> bool:
+    return jax.eval_shape(mjx.make_data, model)._impl.efc_J.size == 0
+
+
 def _yaw_quat(yaw: jax.Array) -> jax.Array:
     return jnp.stack([jnp.cos(yaw / 2), 0.0, 0.0, jnp.sin(yaw / 2)])
 
@@ -65,6 +69,9 @@ class ZoneEnv(Env):
         self._num_parallel = check_feasible(config)
         self.mj_model = load_model(config.robot, config.solver)
         self.mjx_model = mjx.put_model(self.mj_model)
+        # MJX's forward skips the acceleration sensors of a model without any constraint row
+        # (the pruned Point); they are then computed here, as MuJoCo C always does.
+        self._add_sensor_acc = self.mj_model.nsensor > 0 and _has_no_constraints(self.mjx_model)
         self.frame_dt = SUBSTEPS * float(self.mj_model.opt.timestep)
         colors = [c for c, n in zip(config.colors, config.zones_per_color) for _ in range(n)]
         self.zone_color = np.asarray([self.propositions.index(c) for c in colors], np.int32)
@@ -150,7 +157,7 @@ class ZoneEnv(Env):
             position = jnp.concatenate([agent_xy, jnp.array([self.robot.z_height])])
             qpos = jnp.concatenate([position, _yaw_quat(yaw), jnp.asarray(layout["joint_qpos"])])
         data = mjx.make_data(self.mjx_model).replace(qpos=qpos.astype(jnp.float32))
-        data = mjx.forward(self.mjx_model, data)
+        data = self._forward(data)
         state = ZoneState(
             data=data,
             start_qpos=qpos,
@@ -178,7 +185,11 @@ class ZoneEnv(Env):
         """10 physics substeps, then the forward pass the original runs before sensing."""
         data = data.replace(ctrl=jnp.clip(action, -1.0, 1.0).astype(data.ctrl.dtype))
         data = jax.lax.fori_loop(0, SUBSTEPS, lambda _, d: mjx.step(self.mjx_model, d), data)
-        return mjx.forward(self.mjx_model, data)
+        return self._forward(data)
+
+    def _forward(self, data: mjx.Data) -> mjx.Data:
+        data = mjx.forward(self.mjx_model, data)
+        return mjx.sensor_acc(self.mjx_model, data) if self._add_sensor_acc else data
 
     def zone_positions(self, state: ZoneState) -> jax.Array:
         """float32[Z, 2]: current zone centres, metres. A moving zone runs a circle of radius

@@ -40,7 +40,7 @@ def zones_can_overlap(config: ZoneConfig) -> bool:
     ):
         reach += [(c, r, k, config.travel if i < m else 0.0) for i in range(n)]
     for (c1, r1, k1, t1), (c2, r2, k2, t2) in itertools.combinations(reach, 2):
-        if c1 != c2 and k1 + k2 - t1 - t2 < r1 + r2:
+        if c1 != c2 and k1 + k2 - t1 - t2 < r1 + r2 - 1e-9:
             return True
     return False
 

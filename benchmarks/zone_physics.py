@@ -1,0 +1,126 @@
+"""Zone robots: MJX against MuJoCo C on our models, and physics-only MJX throughput.
+
+Fidelity: from a random start, `--steps` env steps (10 substeps + forward) of random actions
+through `ZoneEnv.step_env` against MuJoCo C on the same model; prints the max deviation of the
+agent body position per step. `--x64` runs MJX in float64 (separates float32 rounding, which
+chaotic dynamics amplify, from modelling differences).
+
+Throughput: 10 `mjx.step`s + `mjx.forward` per env step, batched, no sensors, labels or resets:
+what the physics alone allows. Results are appended to benchmarks/RESULTS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import platform
+import shlex
+import sys
+import time
+
+import jax
+
+if "--x64" in sys.argv:
+    jax.config.update("jax_enable_x64", True)
+
+import jax.numpy as jnp  # noqa: E402
+import jaxlib  # noqa: E402
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+from mujoco import mjx  # noqa: E402
+
+from specrl_jax.envs.zone import make_zone  # noqa: E402
+from specrl_jax.envs.zone.config import level_config  # noqa: E402
+
+
+def fidelity(robot: str, steps: int, seeds: int) -> np.ndarray:
+    """float[seeds, steps]: max |MJX - C| of the agent body position (metres) per step."""
+    env, params = make_zone(level_config(robot, 0))
+    step = jax.jit(env.step_env)
+    reset = jax.jit(env.reset)
+    out = []
+    for seed in range(seeds):
+        rng = np.random.default_rng(seed)
+        _, state = reset(jax.random.key(seed), params)
+        actions = rng.uniform(-1, 1, (steps, env.robot.action_dim)).astype(np.float32)
+        data = mujoco.MjData(env.mj_model)
+        data.qpos[:] = np.asarray(state.start_qpos, np.float64)
+        deviation = []
+        for a in actions:
+            _, state, *_ = step(jax.random.key(0), state, jnp.asarray(a), params)
+            data.ctrl[:] = a
+            for _ in range(10):
+                mujoco.mj_step(env.mj_model, data)
+            mujoco.mj_forward(env.mj_model, data)
+            deviation.append(np.abs(np.asarray(state.data.xpos[1]) - data.xpos[1]).max())
+        out.append(deviation)
+    return np.array(out)
+
+
+def physics_throughput(robot: str, batch: int, steps: int) -> tuple[float, float]:
+    """(env-steps/s, compile seconds) of the batched physics alone."""
+    env, params = make_zone(level_config(robot, 0))
+    model = env.mjx_model
+    _, state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(
+        jax.random.split(jax.random.key(0), batch), params
+    )
+
+    def one(data, ctrl):
+        data = data.replace(ctrl=ctrl)
+        data = jax.lax.fori_loop(0, 10, lambda _, d: mjx.step(model, d), data)
+        return mjx.forward(model, data)
+
+    def body(carry, _):
+        key, data = carry
+        key, key_action = jax.random.split(key)
+        ctrl = jax.random.uniform(key_action, (batch, env.robot.action_dim), minval=-1, maxval=1)
+        return (key, jax.vmap(one)(data, ctrl)), None
+
+    run = jax.jit(lambda key, data: jax.lax.scan(body, (key, data), None, steps)[0][1])
+    start = time.perf_counter()
+    compiled = run.lower(jax.random.key(1), state.data).compile()
+    compile_s = time.perf_counter() - start
+    data = jax.block_until_ready(compiled(jax.random.key(1), state.data))
+    start = time.perf_counter()
+    data = jax.block_until_ready(compiled(jax.random.key(2), data))
+    return batch * steps / (time.perf_counter() - start), compile_s
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robots", nargs="+", default=["Point", "Car", "Ant"])
+    parser.add_argument("--steps", type=int, default=50)
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--x64", action="store_true")
+    parser.add_argument("--batches", nargs="*", type=int, default=[])
+    parser.add_argument("--bench-steps", type=int, default=50)
+    parser.add_argument("--results", default="benchmarks/RESULTS.md")
+    args = parser.parse_args()
+    device = jax.devices()[0]
+    lines = [
+        "", f"## Zone physics: MJX vs MuJoCo C, physics-only throughput ({device.device_kind}, "
+        f"{datetime.date.today().isoformat()})", "",
+        f"Versions: jax {jax.__version__}, jaxlib {jaxlib.__version__}, mujoco {mujoco.__version__}, "
+        f"MJX {'float64' if args.x64 else 'float32'}. Command: `{shlex.join(['python', *sys.argv])}`", "",
+    ]
+    if args.steps:
+        lines += ["| robot | seeds | max deviation after 10 / 20 / last steps (m) |", "|---|---|---|"]
+        for robot in args.robots:
+            dev = fidelity(robot, args.steps, args.seeds).max(axis=0)
+            marks = [dev[min(9, len(dev) - 1)], dev[min(19, len(dev) - 1)], dev[-1]]
+            lines.append(f"| {robot} | {args.seeds} | " + " / ".join(f"{d:.2e}" for d in marks)
+                         + f" ({len(dev)} steps) |")
+            print(lines[-1], flush=True)
+    if args.batches:
+        lines += ["", "| robot | batch | physics env-steps/s | compile s |", "|---|---|---|---|"]
+        for robot in args.robots:
+            for batch in args.batches:
+                rate, compile_s = physics_throughput(robot, batch, args.bench_steps)
+                lines.append(f"| {robot} | {batch} | {rate:,.0f} | {compile_s:.1f} |")
+                print(lines[-1], flush=True)
+    with open(args.results, "a") as f:
+        f.write("\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()
