@@ -221,3 +221,39 @@ def test_custom_config_with_sixteen_colours():
     assert config.propositions == tuple(sorted(COLOR_NAMES)) and config.num_zones == 16
     xy, ok = sample_many(config, 32)
     assert ok.all() and np.abs(xy[:, 1:]).max() <= 2.05 + 1e-6
+
+
+# ---- moving zones -------------------------------------------------------------------------
+def test_moving_zones_run_circles_in_sim_time_with_key_drawn_direction_and_phase():
+    from specrl_jax.envs.zone import make_zone
+    from specrl_jax.envs.zone.env import ZoneState
+
+    env, _ = make_zone(level_config("Point", 1))  # zone 0 of each colour moves
+    layouts = [env._random_layout(jax.random.key(s), jnp.zeros((9, 2))) for s in range(12)]
+    direction = np.stack([np.asarray(l["zone_direction"]) for l in layouts])
+    phase = np.stack([np.asarray(l["zone_phase"]) for l in layouts])
+    moving = np.array([True, False] * 4)
+    assert (np.abs(direction[:, moving]) == 1).all() and (direction[:, ~moving] == 0).all()
+    assert {-1.0, 1.0} <= set(direction[:, moving].ravel())
+    assert len(np.unique(phase[:, 0])) == 12 and (phase[:, ~moving] == 0).all()
+
+    centre = jnp.asarray(np.random.default_rng(0).uniform(-1.8, 1.8, (8, 2)), jnp.float32)
+    zone_direction = jnp.array([1.0, 0, -1.0, 0, 1.0, 0, -1.0, 0])
+    zone_phase = jnp.array([0.0, 0, 1.0, 0, 2.0, 0, 3.0, 0])
+
+    def positions(time):
+        state = ZoneState(None, None, centre, zone_direction, zone_phase, jnp.int32(time))
+        return np.asarray(env.zone_positions(state))
+
+    for time in (0, 1, 25, 999):
+        t = time * 0.02  # Point: 10 substeps of 0.002 s per env step
+        angle = 2.0 * t * np.asarray(zone_direction) + np.asarray(zone_phase)
+        expected = np.asarray(centre) + 0.3 * np.abs(np.asarray(zone_direction))[:, None] * np.stack(
+            [np.sin(angle), np.cos(angle)], axis=1
+        )
+        np.testing.assert_allclose(positions(time), expected, atol=1e-5)
+    # direction +1 starting at phase 0 (due +y) moves clockwise: towards +x
+    assert positions(1)[0, 0] > centre[0, 0] and positions(0)[0, 1] == pytest.approx(centre[0, 1] + 0.3)
+    # the Ant's env step lasts 0.1 s of sim time: its zones move 5x further per step
+    ant, _ = make_zone(level_config("Ant", 1))
+    assert ant.frame_dt == pytest.approx(5 * env.frame_dt)
