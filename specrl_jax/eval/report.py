@@ -168,6 +168,11 @@ def plot_complexity(results: Sequence[SuiteResult], path: str | Path) -> Path | 
                 std = np.array([s[f"{metric}_std"] for _, s in series], float)
                 axes[row, col].errorbar(x, mean, yerr=std, marker="o", capsize=3,
                                         label=f"{method}, {disj} disj.")
+        lengths = sorted({length for (k, _, _), series in points.items() if k == kind
+                          for length, _ in series})
+        for row in range(2):
+            axes[row, col].set_xticks(lengths)
+        axes[0, col].set_ylim(-0.02, 1.05)
         axes[0, col].set_title(kind.replace("_", "-"))
         axes[0, col].set_ylabel("success rate eta_s")
         axes[1, col].set_ylabel("steps to success mu")
