@@ -38,6 +38,9 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--chunk", type=int, default=20, help="updates per progress line / checkpoint")
     parser.add_argument("--no-eval", action="store_true")
+    parser.add_argument("--max-wall", type=float, default=None, help="training seconds per method")
+    parser.add_argument("--stochastic-too", action="store_true",
+                        help="also evaluate with the other action mode (diagnostic)")
     parser.add_argument("--complexity", action="store_true", help="also the paper's complexity grid")
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
@@ -55,13 +58,18 @@ def main() -> None:
     for method in args.methods:
         params, summary = experiment.train(
             method, args.env, out / method, overrides, args.seeds, map_bank=args.map_bank,
-            chunk_updates=args.chunk,
+            chunk_updates=args.chunk, max_wall_s=args.max_wall,
         )
         summaries[method] = summary
         print(json.dumps(summary["time_to_success"]), flush=True)
         if not args.no_eval:
             start = time.perf_counter()
             results += experiment.evaluate(method, args.env, params, suites, args.episodes)
+            if args.stochastic_too:
+                other = method == "genz"  # GenZ-LTL's reference mode is deterministic, DeepLTL's sampled
+                label = experiment.METHOD_NAMES[method] + (" (sampled)" if other else " (mode)")
+                results += experiment.evaluate(method, args.env, params, experiment.LETTER_SUITES[:2],
+                                               args.episodes, deterministic=not other, label=label)
             summary["eval_wall_s"] = time.perf_counter() - start
     config = {"args": vars(args), "device": str(device), "training": summaries}
     (out / "training.json").write_text(json.dumps(config, indent=1, default=str))

@@ -200,6 +200,9 @@ class DeepLTL:
     def init_task_params(self) -> Any:
         return self.env.sampler.init()
 
+    def task_metrics(self, task_params: Any) -> dict[str, jax.Array]:
+        return {"curriculum_stage": task_params.stage.astype(jnp.float32)}
+
     def update_task_params(self, task_params: Any, stats: dict[str, jax.Array]) -> Any:
         return self.env.sampler.update(
             task_params, stats["_task_id"].reshape(-1), stats["_finished"].reshape(-1),

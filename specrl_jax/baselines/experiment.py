@@ -48,7 +48,7 @@ def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int
 
 def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str, Any], num_seeds: int = 1,
           seed: int = 0, map_bank: int | None = 65536, chunk_updates: int = 10,
-          log: Callable[[str], None] = print) -> tuple[Any, dict[str, Any]]:
+          log: Callable[[str], None] = print, max_wall_s: float | None = None) -> tuple[Any, dict[str, Any]]:
     """Train `num_seeds` runs; returns `(params with a leading seed axis, training summary)`."""
     key_bank, key_train = jax.random.split(jax.random.key(seed))
     world, params, method_obj, config = build(method, env_id, ppo_overrides, map_bank, key_bank)
@@ -57,7 +57,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     runner = runs.train_in_run_dir(
         trainer, key_train, run_dir, chunk_updates, num_seeds,
         extra_config={"method": method, "env": env_id, "map_bank": map_bank, "seed": seed},
-        summarise=method_module(method).summarise, log=log,
+        summarise=method_module(method).summarise, log=log, max_wall_s=max_wall_s,
     )
     wall = time.perf_counter() - start
     rows = runs.read_metrics(run_dir)
@@ -66,6 +66,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     summary = {
         "method": method, "env": env_id, "num_seeds": num_seeds, "ppo": dataclasses.asdict(config),
         "env_steps_per_seed": rows[-1]["env_steps"] if rows else 0,
+        "complete": int(runner.update[0]) >= config.num_updates,
         "wall_s_this_session": wall,
         "env_steps_per_s": rows[-1]["env_steps"] * num_seeds / rows[-1]["wall_s"] if rows else 0.0,
         "final_success_rate": rows[-1].get("success_rate") if rows else None,
@@ -84,15 +85,20 @@ def time_to_levels(rows: Sequence[dict[str, Any]], levels: Sequence[float] = SUC
     return found
 
 
-def make_policy(method: str, world: Any, method_obj: Any):
+def make_policy(method: str, world: Any, method_obj: Any, deterministic: bool | None = None):
+    """The method's test-time agent; `deterministic` None = the reference's setting (GenZ-LTL
+    mode actions, DeepLTL sampled actions on LetterWorld)."""
     module = method_module(method)
     if method == "genz":
-        return module.make_policy(method_obj.network, world.alphabet)
-    return module.make_policy(method_obj.network, world.alphabet, world.action_space.n)
+        return module.make_policy(method_obj.network, world.alphabet,
+                                  deterministic=True if deterministic is None else deterministic)
+    return module.make_policy(method_obj.network, world.alphabet, world.action_space.n,
+                              deterministic=bool(deterministic))
 
 
 def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episodes: int,
-             log: Callable[[str], None] = print) -> list:
+             log: Callable[[str], None] = print, deterministic: bool | None = None,
+             label: str | None = None) -> list:
     """Evaluate every trained seed (leading axis of `params`) on `suites`; one compiled
     evaluator for all suites together. Returns `SuiteResult`s with one row per trained seed."""
     from specrl_jax import automata, specs
@@ -112,7 +118,7 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
         [automata.compile_spec(f, world.propositions, alphabet=world.alphabet) for f in formulas]
     )
     task = TaskEnv(world, compiled)
-    policy = make_policy(method, world, method_obj)
+    policy = make_policy(method, world, method_obj, deterministic)
     evaluator = make_evaluator(policy, task, env_params, 1, episodes)
     num_seeds = jax.tree.leaves(params)[0].shape[0]
     tables = []
@@ -128,7 +134,8 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
         seeds=tuple(range(1, num_seeds + 1)), episodes_per_seed=episodes,
         horizon=int(env_params.max_steps), table=table,
     )
-    return [SuiteResult(env_id, name, METHOD_NAMES[method], result.select(idx)) for name, idx in groups.items()]
+    label = label or METHOD_NAMES[method]
+    return [SuiteResult(env_id, name, label, result.select(idx)) for name, idx in groups.items()]
 
 
 def load_params(method: str, env_id: str, path: str | Path, num_seeds: int) -> Any:

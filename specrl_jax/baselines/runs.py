@@ -66,12 +66,13 @@ def train_in_run_dir(
     summarise: Callable[[dict[str, float]], dict[str, float]] = lambda m: m,
     log: Callable[[str], None] = print,
     max_updates: int | None = None,
+    max_wall_s: float | None = None,
 ) -> RunnerState:
     """Train `num_seeds` runs of `trainer` side by side (`vmap`) in chunks of `chunk_updates`,
     resuming from `run_dir` when it holds a checkpoint.
 
-    `summarise` derives extra scalars per update and seed (e.g. rates); `max_updates` stops
-    early. Returns the final runner state, with a leading seed axis `[num_seeds]`.
+    `summarise` derives extra scalars per update and seed (e.g. rates); `max_updates` and
+    `max_wall_s` (checked after each chunk) stop early, resumable. Returns the final runner state, with a leading seed axis `[num_seeds]`.
     """
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -108,6 +109,9 @@ def train_in_run_dir(
                 f"{rate:,.0f} steps/s  " + "  ".join(f"{k} {v:.3g}" for k, v in shown.items())
             )
             save_checkpoint(run_dir / CHECKPOINT, runner)
+            if max_wall_s is not None and elapsed > max_wall_s:
+                log(f"stopping at update {done}: wall-clock budget of {max_wall_s:.0f}s spent")
+                break
     plot_curve(run_dir)
     return runner
 

@@ -165,6 +165,8 @@ class Trainer:
         stats = {k: jnp.sum(v) for k, v in traj.stats.items() if not k.startswith("_")}
         runner = RunnerState(params, opt_state, env_state, obs, task_params, key, runner.update + 1)
         metrics = {**stats, **loss_metrics, "epochs": epochs, "reward": jnp.mean(traj.reward)}
+        if hasattr(self.method, "task_metrics"):  # optional: e.g. the curriculum stage
+            metrics.update(self.method.task_metrics(task_params))
         return runner, metrics
 
     def _epochs(self, params, opt_state, batch, key):
