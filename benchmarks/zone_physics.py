@@ -31,6 +31,7 @@ from mujoco import mjx  # noqa: E402
 
 from specrl_jax.envs.zone import make_zone  # noqa: E402
 from specrl_jax.envs.zone.config import level_config  # noqa: E402
+from specrl_jax.envs.zone.models import Solver  # noqa: E402
 
 
 def fidelity(robot: str, steps: int, seeds: int) -> np.ndarray:
@@ -57,9 +58,9 @@ def fidelity(robot: str, steps: int, seeds: int) -> np.ndarray:
     return np.array(out)
 
 
-def physics_throughput(robot: str, batch: int, steps: int) -> tuple[float, float]:
+def physics_throughput(robot: str, batch: int, steps: int, solver: Solver | None) -> tuple[float, float]:
     """(env-steps/s, compile seconds) of the batched physics alone."""
-    env, params = make_zone(level_config(robot, 0))
+    env, params = make_zone(level_config(robot, 0, solver=solver))
     model = env.mjx_model
     _, state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(
         jax.random.split(jax.random.key(0), batch), params
@@ -94,6 +95,8 @@ def main() -> None:
     parser.add_argument("--x64", action="store_true")
     parser.add_argument("--batches", nargs="*", type=int, default=[])
     parser.add_argument("--bench-steps", type=int, default=50)
+    parser.add_argument("--solver", nargs=3, type=int, metavar=("ITER", "LS_ITER", "CONDIM"),
+                        help="throughput with these solver settings instead of the robot's default")
     parser.add_argument("--results", default="benchmarks/RESULTS.md")
     args = parser.parse_args()
     device = jax.devices()[0]
@@ -112,11 +115,13 @@ def main() -> None:
                          + f" ({len(dev)} steps) |")
             print(lines[-1], flush=True)
     if args.batches:
-        lines += ["", "| robot | batch | physics env-steps/s | compile s |", "|---|---|---|---|"]
+        solver = Solver(*args.solver) if args.solver else None
+        label = "default" if solver is None else f"iterations {solver.iterations}, ls {solver.ls_iterations}, condim {solver.condim}"
+        lines += ["", "| robot | solver | batch | physics env-steps/s | compile s |", "|---|---|---|---|---|"]
         for robot in args.robots:
             for batch in args.batches:
-                rate, compile_s = physics_throughput(robot, batch, args.bench_steps)
-                lines.append(f"| {robot} | {batch} | {rate:,.0f} | {compile_s:.1f} |")
+                rate, compile_s = physics_throughput(robot, batch, args.bench_steps, solver)
+                lines.append(f"| {robot} | {label} | {batch} | {rate:,.0f} | {compile_s:.1f} |")
                 print(lines[-1], flush=True)
     with open(args.results, "a") as f:
         f.write("\n".join(lines) + "\n")
