@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import platform
 import shlex
 import sys
 import time
@@ -23,15 +22,15 @@ import jax
 if "--x64" in sys.argv:
     jax.config.update("jax_enable_x64", True)
 
-import jax.numpy as jnp  # noqa: E402
-import jaxlib  # noqa: E402
-import mujoco  # noqa: E402
-import numpy as np  # noqa: E402
-from mujoco import mjx  # noqa: E402
+import jax.numpy as jnp
+import jaxlib
+import mujoco
+import numpy as np
+from mujoco import mjx
 
-from specrl_jax.envs.zone import make_zone  # noqa: E402
-from specrl_jax.envs.zone.config import level_config  # noqa: E402
-from specrl_jax.envs.zone.models import Solver  # noqa: E402
+from specrl_jax.envs.zone import make_zone
+from specrl_jax.envs.zone.config import level_config
+from specrl_jax.envs.zone.models import Solver
 
 
 def fidelity(robot: str, steps: int, seeds: int) -> np.ndarray:
@@ -101,10 +100,13 @@ def main() -> None:
     args = parser.parse_args()
     device = jax.devices()[0]
     lines = [
-        "", f"## Zone physics: MJX vs MuJoCo C, physics-only throughput ({device.device_kind}, "
-        f"{datetime.date.today().isoformat()})", "",
-        f"Versions: jax {jax.__version__}, jaxlib {jaxlib.__version__}, mujoco {mujoco.__version__}, "
-        f"MJX {'float64' if args.x64 else 'float32'}. Command: `{shlex.join(['python', *sys.argv])}`", "",
+        "",
+        (f"## Zone physics: MJX vs MuJoCo C, physics-only throughput ({device.device_kind}, "
+         f"{datetime.date.today().isoformat()})"),
+        "",
+        (f"Versions: jax {jax.__version__}, jaxlib {jaxlib.__version__}, mujoco {mujoco.__version__}, "
+         f"MJX {'float64' if args.x64 else 'float32'}. Command: `{shlex.join(['python', *sys.argv])}`"),
+        "",
     ]
     if args.steps:
         lines += ["| robot | seeds | max deviation after 10 / 20 / last steps (m) |", "|---|---|---|"]

@@ -28,7 +28,7 @@ def action(*values):
 
 
 def test_reset_and_step_trace_once_and_match_spaces(world):
-    env, params, reset, step, reset_to = world
+    env, params, reset, step, _ = world
     for seed in range(3):
         obs, state = reset(jax.random.key(seed), params)
         obs, state, reward, terminated, truncated, info = step(
@@ -45,7 +45,7 @@ def test_reset_and_step_trace_once_and_match_spaces(world):
 
 
 def test_same_key_same_episode_other_key_other_layout(world):
-    env, params, reset, _, reset_to = world
+    env, params, reset, _, _ = world
     a, _ = reset(jax.random.key(1), params)
     b, _ = reset(jax.random.key(1), params)
     c, state_c = reset(jax.random.key(2), params)
@@ -57,9 +57,9 @@ def test_same_key_same_episode_other_key_other_layout(world):
 
 
 def test_reset_to_reproduces_the_layout_and_a_hand_built_start(world):
-    env, params, reset, step, reset_to = world
+    env, params, reset, _, reset_to = world
     obs, state = reset(jax.random.key(5), params)
-    obs2, state2 = reset_to(jax.random.key(0), env.layout(state), params)
+    obs2, _ = reset_to(jax.random.key(0), env.layout(state), params)
     chex.assert_trees_all_close(obs, obs2, atol=1e-6)
     # At rest: the accelerometer reads gravity, the magnetometer R^T (0, -0.5, 0).
     layout = dict(env.layout(state), agent_xy=jnp.array([0.0, 0.0]), agent_yaw=jnp.array(np.pi / 2))
@@ -102,7 +102,7 @@ def test_wall_crossing_terminates(world):
 
 
 def test_horizon_truncates_and_auto_reset_returns_the_final_observation(world):
-    env, params, reset, step, reset_to = world
+    env, params, reset, step, _ = world
     obs, state = reset(jax.random.key(3), params)
     start = env.layout(state)["agent_xy"]
     for t in range(params.max_steps):
@@ -115,16 +115,16 @@ def test_horizon_truncates_and_auto_reset_returns_the_final_observation(world):
 
 
 def test_batch_equals_members_and_long_rollout_stays_finite(world):
-    env, params, reset, step, reset_to = world
+    _, params, reset, step, _ = world
     keys = jax.random.split(jax.random.key(7), BATCH)
-    obs_b, state_b = jax.vmap(reset, in_axes=(0, None))(keys, params)
+    _, state_b = jax.vmap(reset, in_axes=(0, None))(keys, params)
     actions = jax.random.uniform(jax.random.key(8), (40, BATCH, 2), minval=-1, maxval=1)
     step_b = jax.jit(jax.vmap(step, in_axes=(0, 0, 0, None)))
 
     def rollout(carry, inputs):
         state, = carry
         key, act = inputs
-        obs, state, _, terminated, truncated, info = step_b(jax.random.split(key, BATCH), state, act, params)
+        obs, state, _, terminated, truncated, _ = step_b(jax.random.split(key, BATCH), state, act, params)
         return (state,), (obs, terminated | truncated)
 
     step_keys = jax.random.split(jax.random.key(9), 40)
@@ -141,7 +141,7 @@ def test_batch_equals_members_and_long_rollout_stays_finite(world):
 
 
 def test_original_flat_layout(world):
-    env, params, reset, _, reset_to = world
+    env, params, reset, _, _ = world
     obs, _ = reset(jax.random.key(0), params)
     flat = np.asarray(env.original_observation(obs))
     assert flat.shape == (80,) and env.original_observation_space.shape == (80,)

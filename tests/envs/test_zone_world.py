@@ -21,7 +21,7 @@ from specrl_jax.envs.zone.sensors import compute_lidar, wall_sensor
 
 
 # ---- layout -------------------------------------------------------------------------------
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def batched_sampler(config: ZoneConfig):
     parallel = check_feasible(config)
     return jax.jit(jax.vmap(lambda k: sample_positions(k, config, parallel)))

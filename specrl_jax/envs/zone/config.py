@@ -92,7 +92,7 @@ class ZoneConfig:
             raise ValueError(
                 f"colors must be distinct names from {COLOR_NAMES}; got {colors!r}"
             )
-        set_ = lambda name, value: object.__setattr__(self, name, value)  # noqa: E731
+        set_ = lambda name, value: object.__setattr__(self, name, value)
         set_("colors", colors)
         set_("zones_per_color", _per_color(self.zones_per_color, colors, "zones_per_color", int))
         set_("zone_radius", _per_color(self.zone_radius, colors, "zone_radius", float))

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 import mujoco
 
 
-
 @dataclass(frozen=True)
 class Solver:
     """Solver settings of the physics model; the default is MuJoCo's (the original's)."""
