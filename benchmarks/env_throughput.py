@@ -98,7 +98,7 @@ def device_name() -> str:
     )
 
 
-def append_results(path: str, rows: list[dict[str, Any]], args: argparse.Namespace) -> str:
+def results_header(args: argparse.Namespace) -> str:
     versions = (
         f"jax {jax.__version__}, jaxlib {jaxlib.__version__}, specrl_jax {specrl_jax.__version__}, "
         f"Python {platform.python_version()}, PRNG {jax.config.jax_default_prng_impl}"
@@ -113,16 +113,21 @@ def append_results(path: str, rows: list[dict[str, Any]], args: argparse.Namespa
         "| env | reset | batch | steps/call | env-steps/s (best) | env-steps/s (median) | compile s | bank build s |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    for r in rows:
-        bank = "" if r["bank_s"] is None else f"{r['bank_s']:.1f} ({args.bank_size} maps)"
-        lines.append(
-            f"| {r['env']} | {r['reset']} | {r['batch']} | {r['steps']} | {r['best']:,.0f} | "
-            f"{r['median']:,.0f} | {r['compile_s']:.1f} | {bank} |"
-        )
-    text = "\n".join(lines) + "\n"
+    return "\n".join(lines) + "\n"
+
+
+def results_row(r: dict[str, Any], args: argparse.Namespace) -> str:
+    bank = "" if r["bank_s"] is None else f"{r['bank_s']:.1f} ({args.bank_size} maps)"
+    return (
+        f"| {r['env']} | {r['reset']} | {r['batch']} | {r['steps']} | {r['best']:,.0f} | "
+        f"{r['median']:,.0f} | {r['compile_s']:.1f} | {bank} |\n"
+    )
+
+
+def append(path: str, text: str) -> None:
+    """Append at once, so rows measured before a crash or timeout are kept."""
     with open(path, "a") as f:
         f.write(text)
-    return text
 
 
 def parse_args() -> argparse.Namespace:
@@ -153,7 +158,7 @@ def parse_args() -> argparse.Namespace:
 def main() -> None:
     args = parse_args()
     jax.config.update("jax_default_prng_impl", args.prng)
-    rows = []
+    header_written = False
     for env_id in args.envs:
         for mode in args.resets:
             for num_envs in args.batches:
@@ -172,9 +177,10 @@ def main() -> None:
                     f"(median {row['median']:,.0f}), compile {row['compile_s']:.1f}s",
                     flush=True,
                 )
-                rows.append(row)
-    if rows:
-        print(append_results(args.results, rows, args))
+                if not header_written:
+                    append(args.results, results_header(args))
+                    header_written = True
+                append(args.results, results_row(row, args))
 
 
 if __name__ == "__main__":

@@ -236,5 +236,6 @@ def letters_from_bank(key: jax.Array, bank: jax.Array, spec: MapSpec) -> jax.Arr
     index = jnp.arange(k)
     before = (u[None, :] < u[:, None]) | ((u[None, :] == u[:, None]) & (index[None, :] < index[:, None]))
     rank = jnp.sum(before, axis=1)
-    slot_letters = jnp.asarray(spec.slot_letters, jnp.int8)[rank]
+    # The barrier keeps XLA from fusing (and so recomputing) the k x k ranking into every cell.
+    slot_letters = jax.lax.optimization_barrier(jnp.asarray(spec.slot_letters, jnp.int8)[rank])
     return jnp.where(ordinal >= 0, slot_letters[jnp.maximum(ordinal, 0)], -1).astype(jnp.int8)
