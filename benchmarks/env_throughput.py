@@ -60,7 +60,9 @@ def make_rollout(env: BatchedEnv, params: Any, num_steps: int):
     return jax.jit(rollout, donate_argnums=1)
 
 
-def measure(env_id: str, mode: str, num_envs: int, args: argparse.Namespace) -> dict[str, Any] | None:
+def measure(
+    env_id: str, mode: str, num_envs: int, args: argparse.Namespace
+) -> dict[str, Any] | None:
     env, params = specrl_jax.make(env_id)
     key_bank, key_reset, key_run = jax.random.split(jax.random.key(args.seed), 3)
     if mode == "bank":
@@ -85,9 +87,15 @@ def measure(env_id: str, mode: str, num_envs: int, args: argparse.Namespace) -> 
         times.append(time.perf_counter() - start)
     steps = num_envs * args.steps
     return {
-        "env": env_id, "reset": mode, "batch": num_envs, "steps": args.steps,
-        "best": steps / min(times), "median": steps / statistics.median(times),
-        "compile_s": compile_s, "bank_s": bank_s, "checksum": float(total),
+        "env": env_id,
+        "reset": mode,
+        "batch": num_envs,
+        "steps": args.steps,
+        "best": steps / min(times),
+        "median": steps / statistics.median(times),
+        "compile_s": compile_s,
+        "bank_s": bank_s,
+        "checksum": float(total),
     }
 
 
@@ -140,7 +148,9 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--bank-size", type=int, default=65536)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
-        "--prng", default="threefry2x32", choices=["threefry2x32", "rbg", "unsafe_rbg"],
+        "--prng",
+        default="threefry2x32",
+        choices=["threefry2x32", "rbg", "unsafe_rbg"],
         help="JAX PRNG implementation (threefry2x32 is JAX's default)",
     )
     parser.add_argument("--results", default="benchmarks/RESULTS.md")

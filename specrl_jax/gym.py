@@ -9,7 +9,7 @@ env: they jit once, hold the only stateful key, and seed it through `reset(seed=
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import gymnasium
 import jax
@@ -48,7 +48,7 @@ def _seed_key(seed: int | None, rng: np.random.Generator) -> jax.Array:
 class GymEnv(gymnasium.Env):
     """One specrl_jax world as a `gymnasium.Env` (numpy in, numpy out)."""
 
-    metadata = {"render_modes": []}
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": []}
 
     def __init__(self, env_id: str, render_mode: str | None = None, **overrides: Any):
         if render_mode is not None:
@@ -69,7 +69,11 @@ class GymEnv(gymnasium.Env):
         def step(key: jax.Array, state: Any, action: jax.Array, params: Any) -> tuple:
             obs, state, reward, terminated, truncated, info = env.step(key, state, action, params)
             return (
-                env.original_observation(obs), state, reward, terminated, truncated,
+                env.original_observation(obs),
+                state,
+                reward,
+                terminated,
+                truncated,
                 info["propositions"],
             )
 
@@ -92,7 +96,9 @@ class GymEnv(gymnasium.Env):
         action = np.asarray(action)
         self.env.action_space.check(action)
         self._key, key = jax.random.split(self._key)
-        out = self._step(key, self._state, jnp.asarray(action, self.env.action_space.dtype), self.params)
+        out = self._step(
+            key, self._state, jnp.asarray(action, self.env.action_space.dtype), self.params
+        )
         obs, self._state, reward, terminated, truncated, label = out
         obs, reward, terminated, truncated, label = jax.device_get(
             (obs, reward, terminated, truncated, label)
@@ -111,7 +117,10 @@ class GymVectorEnv(gymnasium.vector.VectorEnv):
     ends, `info["final_obs"]` holds its last observation where `info["_final_obs"]` is True.
     """
 
-    metadata = {"autoreset_mode": AutoresetMode.SAME_STEP, "render_modes": []}
+    metadata: ClassVar[dict[str, Any]] = {
+        "autoreset_mode": AutoresetMode.SAME_STEP,
+        "render_modes": [],
+    }
 
     def __init__(self, env_id: str, num_envs: int = 1, **overrides: Any):
         if not isinstance(num_envs, int) or num_envs < 1:
@@ -135,7 +144,9 @@ class GymVectorEnv(gymnasium.vector.VectorEnv):
             return original(obs), state
 
         def step(key: jax.Array, state: Any, action: jax.Array, params: Any) -> tuple:
-            obs, state, reward, terminated, truncated, info = batched.step(key, state, action, params)
+            obs, state, reward, terminated, truncated, info = batched.step(
+                key, state, action, params
+            )
             final = original(info["final_observation"])
             return original(obs), state, reward, terminated, truncated, info["propositions"], final
 

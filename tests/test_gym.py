@@ -79,7 +79,9 @@ def test_vector_env_steps_all_worlds_and_auto_resets():
         last = info["final_obs"] if t == 1 else obs
         for i in range(3):
             # Moving right shifts the whole torus view one column left.
-            np.testing.assert_array_equal(last[i, :, :, :12], np.roll(previous[i, :, :, :12], -1, axis=1))
+            np.testing.assert_array_equal(
+                last[i, :, :, :12], np.roll(previous[i, :, :, :12], -1, axis=1)
+            )
             props = {LETTERS[p] for p in np.flatnonzero(info["propositions"][i])}
             assert props == letter_under_agent(last[i])
         previous = last

@@ -58,7 +58,9 @@ class LetterConfig:
         if len(set(letters)) != len(letters):
             raise ValueError(f"letters must be distinct, got {letters!r}")
         object.__setattr__(self, "letters", letters)
-        counts = (self.counts,) * len(letters) if isinstance(self.counts, int) else tuple(self.counts)
+        counts = (
+            (self.counts,) * len(letters) if isinstance(self.counts, int) else tuple(self.counts)
+        )
         if len(counts) != len(letters) or not all(isinstance(c, int) and c >= 1 for c in counts):
             raise ValueError(
                 f"counts must be a positive int or one positive int per letter ({len(letters)}), "

@@ -222,7 +222,7 @@ def letters_from_bank(key: jax.Array, bank: jax.Array, spec: MapSpec) -> jax.Arr
     Returns:
         int8[N, N] letter indices, -1 where empty.
     """
-    n, k = spec.grid_size, spec.num_cells
+    k = spec.num_cells
     key_entry, key_symmetry, key_labels = jax.random.split(key, 3)
     entry = jnp.asarray(bank)[jax.random.randint(key_entry, (), 0, bank.shape[0])]
     flips = jax.random.bernoulli(key_symmetry, 0.5, (3,))
@@ -234,7 +234,9 @@ def letters_from_bank(key: jax.Array, bank: jax.Array, spec: MapSpec) -> jax.Arr
     # A uniform permutation as the ranks of i.i.d. keys (ties broken by index): no sort needed.
     u = jax.random.bits(key_labels, (k,), jnp.uint32)
     index = jnp.arange(k)
-    before = (u[None, :] < u[:, None]) | ((u[None, :] == u[:, None]) & (index[None, :] < index[:, None]))
+    before = (u[None, :] < u[:, None]) | (
+        (u[None, :] == u[:, None]) & (index[None, :] < index[:, None])
+    )
     rank = jnp.sum(before, axis=1)
     # The barrier keeps XLA from fusing (and so recomputing) the k x k ranking into every cell.
     slot_letters = jax.lax.optimization_barrier(jnp.asarray(spec.slot_letters, jnp.int8)[rank])

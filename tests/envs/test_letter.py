@@ -88,14 +88,18 @@ def test_moves_wrap_around_the_torus():
         env, params = specrl_jax.make(env_id)
         letters = -np.ones((n, n), np.int32)
         letters[n - 1, 0], letters[0, n - 1], letters[1, 0], letters[0, 1] = 0, 1, 2, 3
-        _, state = env.reset_to(jax.random.key(0), {"letters": letters, "agent": np.zeros(2, np.int32)}, params)
+        _, state = env.reset_to(
+            jax.random.key(0), {"letters": letters, "agent": np.zeros(2, np.int32)}, params
+        )
         expected = {0: ((n - 1, 0), 0), 1: ((1, 0), 2), 2: ((0, n - 1), 1), 3: ((0, 1), 3)}
         for action, (cell, letter) in expected.items():
             _, moved, *_, info = env.step(jax.random.key(1), state, jnp.int32(action), params)
             np.testing.assert_array_equal(moved.agent, cell)
             assert np.flatnonzero(info["propositions"]).tolist() == [letter]
         # The agent may stand on a letter: both its channel and the agent channel at the centre.
-        _, on_letter = env.reset_to(jax.random.key(0), {"letters": letters, "agent": np.array([1, 0])}, params)
+        _, on_letter = env.reset_to(
+            jax.random.key(0), {"letters": letters, "agent": np.array([1, 0])}, params
+        )
         obs = env.observe(on_letter)
         centre = env.config.view // 2
         assert obs["ap"][centre, centre].tolist() == [0, 0, 1] + [0] * 9
@@ -141,9 +145,9 @@ def test_vmap_agrees_with_single_steps():
     out_b = jax.jit(jax.vmap(env.step, in_axes=(0, 0, 0, None)))(keys, state_b, actions, params)
     for i in range(3):
         obs_i, state_i = reset(keys[i], params)
-        jax.tree.map(lambda b, s: np.testing.assert_array_equal(b[i], s), obs_b, obs_i)
+        jax.tree.map(lambda b, s, i=i: np.testing.assert_array_equal(b[i], s), obs_b, obs_i)
         out_i = step(keys[i], state_i, actions[i], params)
-        jax.tree.map(lambda b, s: np.testing.assert_array_equal(b[i], s), out_b, out_i)
+        jax.tree.map(lambda b, s, i=i: np.testing.assert_array_equal(b[i], s), out_b, out_i)
 
 
 def test_alphabet_propositions_and_spaces():
@@ -163,7 +167,9 @@ def test_custom_config_scales_propositions():
     assert env.config.view == 9 and params.max_steps == 10 and env.alphabet.shape == (4, 3)
     obs, state = jax.jit(env.reset)(jax.random.key(0), params)
     assert obs["ap"].shape == (9, 9, 3)
-    np.testing.assert_array_equal(np.bincount(np.asarray(state.letters)[state.letters >= 0]), [1, 2, 3])
+    np.testing.assert_array_equal(
+        np.bincount(np.asarray(state.letters)[state.letters >= 0]), [1, 2, 3]
+    )
 
 
 @pytest.mark.parametrize(

@@ -23,13 +23,17 @@ def test_auto_reset_truncates_at_the_horizon_and_starts_a_fresh_map(letter):
     step = jax.jit(wrapped.step)
     for t in range(1, 4):
         previous = state
-        obs, state, reward, terminated, truncated, info = step(
+        obs, state, _, terminated, truncated, info = step(
             jax.random.key(t), state, jnp.int32(3), params
         )
         assert not terminated and bool(truncated) == (t == 3)
     # The step that truncates reports the finished episode and returns a fresh one.
-    np.testing.assert_array_equal(info["final_observation"]["ap"], env.observe(
-        previous.replace(agent=previous.agent.at[1].set(3), time=previous.time + 1))["ap"])
+    np.testing.assert_array_equal(
+        info["final_observation"]["ap"],
+        env.observe(previous.replace(agent=previous.agent.at[1].set(3), time=previous.time + 1))[
+            "ap"
+        ],
+    )
     assert int(state.time) == 0 and state.agent.tolist() == [0, 0]
     assert not np.array_equal(state.letters, previous.letters)
     fresh = env.observe(state)
@@ -49,7 +53,7 @@ def test_episode_statistics_and_batching_with_a_map_bank(letter):
     step = jax.jit(batched.step)
     for t in range(7):
         actions = batched.sample_actions(jax.random.key(100 + t))
-        obs, state, reward, terminated, truncated, info = step(jax.random.key(t), state, actions, params)
+        obs, state, _, _, truncated, info = step(jax.random.key(t), state, actions, params)
         assert truncated.shape == (4,) and bool(np.all(truncated)) == (t in (2, 5))
     assert info["episode_length"].tolist() == [3] * 4
     assert state.episode_length.tolist() == [1] * 4
@@ -73,7 +77,9 @@ def test_episode_statistics_and_batching_with_a_map_bank(letter):
 def test_step_rejects_bad_actions(letter, action, error, message):
     env, params = letter
     _, state = env.reset_to(
-        jax.random.key(0), {"letters": -np.ones((7, 7), np.int32), "agent": np.zeros(2, np.int32)}, params
+        jax.random.key(0),
+        {"letters": -np.ones((7, 7), np.int32), "agent": np.zeros(2, np.int32)},
+        params,
     )
     with pytest.raises(error, match=message):
         env.step(jax.random.key(0), state, action, params)
@@ -81,7 +87,9 @@ def test_step_rejects_bad_actions(letter, action, error, message):
 
 def test_registry_errors_and_listing():
     assert {"LetterLTL0-v0", "LetterLTL0-v0.partial"} <= set(specrl_jax.list_envs())
-    with pytest.raises(ValueError, match=r"unknown env ID 'LetterLTL1-v0'.*Did you mean 'LetterLTL0-v0'"):
+    with pytest.raises(
+        ValueError, match=r"unknown env ID 'LetterLTL1-v0'.*Did you mean 'LetterLTL0-v0'"
+    ):
         specrl_jax.make("LetterLTL1-v0")
     with pytest.raises(TypeError, match="env ID must be a string, got int"):
         specrl_jax.make(3)
