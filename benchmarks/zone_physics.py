@@ -33,9 +33,9 @@ from specrl_jax.envs.zone.config import level_config
 from specrl_jax.envs.zone.models import Solver
 
 
-def fidelity(robot: str, steps: int, seeds: int) -> np.ndarray:
+def fidelity(robot: str, steps: int, seeds: int, solver: Solver | None) -> np.ndarray:
     """float[seeds, steps]: max |MJX - C| of the agent body position (metres) per step."""
-    env, params = make_zone(level_config(robot, 0))
+    env, params = make_zone(level_config(robot, 0, solver=solver))
     step = jax.jit(env.step_env)
     reset = jax.jit(env.reset)
     out = []
@@ -95,7 +95,7 @@ def main() -> None:
     parser.add_argument("--batches", nargs="*", type=int, default=[])
     parser.add_argument("--bench-steps", type=int, default=50)
     parser.add_argument("--solver", nargs=3, type=int, metavar=("ITER", "LS_ITER", "CONDIM"),
-                        help="throughput with these solver settings instead of the robot's default")
+                        help="use these solver settings instead of the robot's default")
     parser.add_argument("--results", default="benchmarks/RESULTS.md")
     args = parser.parse_args()
     device = jax.devices()[0]
@@ -108,17 +108,20 @@ def main() -> None:
          f"MJX {'float64' if args.x64 else 'float32'}. Command: `{shlex.join(['python', *sys.argv])}`"),
         "",
     ]
+    solver = Solver(*args.solver) if args.solver else None
+    label = "default" if solver is None else (
+        f"iterations {solver.iterations}, ls {solver.ls_iterations}, condim {solver.condim}"
+    )
     if args.steps:
-        lines += ["| robot | seeds | max deviation after 10 / 20 / last steps (m) |", "|---|---|---|"]
+        lines += [f"Solver: {label}.", "", "| robot | seeds | max deviation after 10 / 20 / last steps (m) |",
+                  "|---|---|---|"]
         for robot in args.robots:
-            dev = fidelity(robot, args.steps, args.seeds).max(axis=0)
+            dev = fidelity(robot, args.steps, args.seeds, solver).max(axis=0)
             marks = [dev[min(9, len(dev) - 1)], dev[min(19, len(dev) - 1)], dev[-1]]
             lines.append(f"| {robot} | {args.seeds} | " + " / ".join(f"{d:.2e}" for d in marks)
                          + f" ({len(dev)} steps) |")
             print(lines[-1], flush=True)
     if args.batches:
-        solver = Solver(*args.solver) if args.solver else None
-        label = "default" if solver is None else f"iterations {solver.iterations}, ls {solver.ls_iterations}, condim {solver.condim}"
         lines += ["", "| robot | solver | batch | physics env-steps/s | compile s |", "|---|---|---|---|---|"]
         for robot in args.robots:
             for batch in args.batches:

@@ -156,7 +156,8 @@ class ZoneEnv(Env):
         else:
             position = jnp.concatenate([agent_xy, jnp.array([self.robot.z_height])])
             qpos = jnp.concatenate([position, _yaw_quat(yaw), jnp.asarray(layout["joint_qpos"])])
-        data = mjx.make_data(self.mjx_model).replace(qpos=qpos.astype(jnp.float32))
+        data = mjx.make_data(self.mjx_model)
+        data = data.replace(qpos=qpos.astype(data.qpos.dtype))
         data = self._forward(data)
         state = ZoneState(
             data=data,
