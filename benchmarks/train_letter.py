@@ -38,6 +38,8 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--chunk", type=int, default=20, help="updates per progress line / checkpoint")
     parser.add_argument("--no-eval", action="store_true")
+    parser.add_argument("--load", nargs="*", default=[], metavar="METHOD=PATH",
+                        help="evaluate parameters saved by an earlier run instead of training")
     parser.add_argument("--max-wall", type=float, default=None, help="training seconds per method")
     parser.add_argument("--stochastic-too", action="store_true",
                         help="also evaluate with the other action mode (diagnostic)")
@@ -55,13 +57,18 @@ def main() -> None:
             overrides[name] = getattr(args, flag)
     suites = experiment.LETTER_SUITES + (COMPLEXITY if args.complexity else ())
     results, summaries = [], {}
+    loads = dict(item.split("=", 1) for item in args.load)
     for method in args.methods:
-        params, summary = experiment.train(
-            method, args.env, out / method, overrides, args.seeds, map_bank=args.map_bank,
-            chunk_updates=args.chunk, max_wall_s=args.max_wall,
-        )
-        summaries[method] = summary
-        print(json.dumps(summary["time_to_success"]), flush=True)
+        if method in loads:
+            params = experiment.load_params(method, args.env, loads[method], args.seeds)
+            summary = summaries[method] = {"loaded_from": loads[method]}
+        else:
+            params, summary = experiment.train(
+                method, args.env, out / method, overrides, args.seeds, map_bank=args.map_bank,
+                chunk_updates=args.chunk, max_wall_s=args.max_wall,
+            )
+            summaries[method] = summary
+            print(json.dumps(summary["time_to_success"]), flush=True)
         if not args.no_eval:
             start = time.perf_counter()
             results += experiment.evaluate(method, args.env, params, suites, args.episodes)

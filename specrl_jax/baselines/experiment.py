@@ -119,7 +119,7 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
     )
     task = TaskEnv(world, compiled)
     policy = make_policy(method, world, method_obj, deterministic)
-    evaluator = make_evaluator(policy, task, env_params, 1, episodes)
+    evaluator = make_evaluator(policy, task, env_params, episodes_per_seed=episodes)
     num_seeds = jax.tree.leaves(params)[0].shape[0]
     tables = []
     for s in range(num_seeds):

@@ -166,30 +166,34 @@ class PlanCarry(NamedTuple):
     q: jax.Array  # int32[], automaton state the plan was made in (-1: none yet)
     reach: jax.Array  # bool[P], the chosen single-proposition reach
     avoid: jax.Array  # bool[P]
-    candidate: jax.Array  # int32[], index of the chosen (subgoal, proposition) candidate
-    infeasible: jax.Array  # bool[G * P], candidates given up in this automaton state
+    candidate: jax.Array  # int32[], index of the chosen (sequence, proposition) candidate
+    infeasible: jax.Array  # bool[C * P], candidates given up in this automaton state
     steps: jax.Array  # int32[], steps since the plan was made
     stuck: jax.Array  # bool[], no candidate left
 
 
 def candidate_masks(spec: Any, q: jax.Array, alphabet: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
-    """The candidates of automaton state `q`: one per (subgoal g, proposition p) with p's
-    single-letter symbol in g's reach set and not in its avoid set.
+    """GenZ-LTL's candidates in automaton state `q`: the first reach-avoid pair of every path
+    the reference's depth-first search finds (the compiled spec's candidate sequences, epsilon
+    steps skipped), its reach set split into single letters.
 
-    Returns `(reach bool[G*P, P], avoid bool[G*P, P], valid bool[G*P])`. The avoid set keeps the
-    letters of g's avoid symbols; an avoided empty assignment cannot be drawn in the image and is
-    dropped (docs/fidelity.md).
+    Returns `(reach bool[C*P, P], avoid bool[C*P, P], valid bool[C*P])`: candidate (c, p) reaches
+    letter p while avoiding the letters of pair c's avoid set; a letter inside its own avoid set
+    is no candidate. An avoided empty assignment cannot be drawn in the image and is dropped
+    (the reference aborts there; docs/fidelity.md).
     """
     num_props = alphabet.shape[1]
     single = alphabet.sum(-1) == 1  # [A]
-    reach_sym = spec.subgoal_reach[q] & single  # [G, A]
-    avoid_sym = spec.subgoal_avoid[q]
-    reach_props = jnp.any(reach_sym[..., None] & alphabet, axis=1)  # [G, P]
-    avoid_props = jnp.any((avoid_sym & single)[..., None] & alphabet, axis=1)  # [G, P]
+    first = spec.seq_epsilon[q, :, 0].astype(jnp.int32)  # [C], index of the first non-epsilon pair
+    reach_sym = jnp.take_along_axis(spec.seq_reach[q], first[:, None, None], axis=1)[:, 0] & single
+    avoid_sym = jnp.take_along_axis(spec.seq_avoid[q], first[:, None, None], axis=1)[:, 0] & single
+    usable = spec.seq_valid[q] & (first < spec.seq_length[q])
+    reach_props = jnp.any(reach_sym[..., None] & alphabet, axis=1)  # [C, P]
+    avoid_props = jnp.any(avoid_sym[..., None] & alphabet, axis=1)  # [C, P]
     eye = jnp.eye(num_props, dtype=bool)
-    reach = jnp.broadcast_to(eye, (reach_props.shape[0], num_props, num_props))  # [G, P, P]
+    reach = jnp.broadcast_to(eye, (reach_props.shape[0], num_props, num_props))  # [C, P, P]
     avoid = jnp.broadcast_to(avoid_props[:, None, :], reach.shape)
-    valid = spec.subgoal_valid[q][:, None] & reach_props & ~avoid_props
+    valid = usable[:, None] & reach_props & ~avoid_props
     return reach.reshape(-1, num_props), avoid.reshape(-1, num_props), valid.reshape(-1)
 
 
@@ -215,7 +219,7 @@ def make_policy(network: nn.Module, alphabet: jax.Array, deterministic: bool = T
                          jnp.zeros((), jnp.int32), ~jnp.any(allowed))
 
     def init(params, obs, task_state, key):
-        num = task_state.spec.subgoal_valid.shape[1] * alphabet.shape[1]
+        num = task_state.spec.seq_valid.shape[1] * alphabet.shape[1]
         return plan(params, obs, task_state, jnp.zeros(num, bool))
 
     def apply(params, obs, task_state, carry: PlanCarry, key):

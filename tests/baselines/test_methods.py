@@ -57,3 +57,19 @@ def test_sequence_encoder_reads_only_the_remaining_pairs():
     two = obs._replace(start=jnp.int32(0), end=jnp.int32(2))
     swapped = two._replace(reach=two.reach[jnp.array([1, 0, 2])], avoid=two.avoid[jnp.array([1, 0, 2])])
     assert not np.allclose(encoder.apply(params, two), encoder.apply(params, swapped))
+
+
+def test_evaluate_runs_each_trained_seed_on_the_suite_protocol(monkeypatch):
+    from specrl_jax.baselines import experiment
+
+    monkeypatch.setattr("specrl_jax.specs.suite", lambda name: ["F a", "!b U c"])
+    world, params = make_letter_world(LetterConfig())
+    method = genz.make_method(world, params)
+    obs, _ = method.env.reset(jax.random.key(0))
+    one = method.network.init(jax.random.key(0), obs[None])
+    two_seeds = jax.tree.map(lambda x: jnp.stack([x, x]), one)
+    (suite,) = experiment.evaluate("genz", "LetterLTL0-v0", two_seeds, ["tiny"], 3, log=lambda s: None)
+    table = suite.result.table
+    assert table.success.shape == (2, 2, 3) and suite.result.horizon == 75
+    assert suite.result.seeds == (1, 2) and suite.method == "GenZ-LTL"
+    assert np.all(table.steps <= 75) and not np.any(table.success & table.violation)
