@@ -22,6 +22,9 @@ import numpy as np
 from specrl_jax.envs.zone.config import ZoneConfig
 
 
+MAX_PARALLEL = 16
+
+
 class Objects(NamedTuple):
     """Placement table, agent first. `keepout: float32[N]`, metres."""
 
@@ -109,7 +112,8 @@ def attempt_success_rate(config: ZoneConfig, num_attempts: int = 4000, seed: int
 def check_feasible(config: ZoneConfig) -> int:
     """Raise `ValueError` if the sampler cannot place the objects; return `num_parallel`.
 
-    `num_parallel` is sized so that one loop iteration nearly always finds a layout.
+    `num_parallel` is sized so that one loop iteration nearly always finds a layout, up to
+    `MAX_PARALLEL`.
     """
     rate = attempt_success_rate(config)
     if rate == 0.0:
@@ -122,4 +126,6 @@ def check_feasible(config: ZoneConfig) -> int:
             f"{config.max_tries} tries per object; use fewer zones or smaller keepouts"
         )
     target = math.ceil(2.0 / rate)
-    return int(min(256, 2 ** math.ceil(math.log2(max(target, 1)))))
+    # Capped: a round holds [num_parallel, max_tries, N] distances per env, which at level 2
+    # (about 89 attempts per layout) and batch 65,536 would not fit in GPU memory uncapped.
+    return int(min(MAX_PARALLEL, 2 ** math.ceil(math.log2(max(target, 1)))))
