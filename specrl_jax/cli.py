@@ -275,6 +275,8 @@ def train_command(args: argparse.Namespace) -> int:
     arg("--seeds", type=int, default=None, help="default 5 on an accelerator, 1 on a CPU"),
     arg("--episodes", type=int, default=None, help="per spec and seed; default 100 (GPU) / 20 (CPU)"),
     arg("--out", default="runs/run"),
+    arg("--params", default=None,
+        help="evaluate saved GenZ-LTL parameters (params.msgpack of a run) instead of training"),
 )
 def run_command(args: argparse.Namespace) -> int:
     enable_compilation_cache()
@@ -288,13 +290,18 @@ def run_command(args: argparse.Namespace) -> int:
     seeds = args.seeds or (5 if gpu else 1)
     episodes = args.episodes or (100 if gpu else 20)
     out = Path(args.out)
-    overrides = experiment.default_overrides("gpu" if gpu else "cpu", total)
-    if not gpu:  # a short budget: fewer epochs per update keeps it to minutes on two cores
-        overrides.update(num_envs=32, num_steps=64, update_epochs=10)
-    params, summary = experiment.train("genz", "LetterLTL0-v0", out, overrides, seeds,
-                                       map_bank=65536 if gpu else 4096)
-    print(f"trained GenZ-LTL: {seeds} x {summary['env_steps_per_seed']:,} steps at "
-          f"{summary['env_steps_per_s']:,.0f} env-steps/s")
+    out.mkdir(parents=True, exist_ok=True)
+    if args.params:  # a file of `--seeds` runs (default 1), e.g. the committed GPU-trained agent
+        params = experiment.load_params("genz", "LetterLTL0-v0", args.params, args.seeds or 1)
+        summary = {"loaded_from": args.params}
+    else:
+        overrides = experiment.default_overrides("gpu" if gpu else "cpu", total)
+        if not gpu:  # a short budget: fewer epochs per update keeps it to minutes on two cores
+            overrides.update(num_envs=32, num_steps=64, update_epochs=10)
+        params, summary = experiment.train("genz", "LetterLTL0-v0", out, overrides, seeds,
+                                           map_bank=65536 if gpu else 4096)
+        print(f"trained GenZ-LTL: {seeds} x {summary['env_steps_per_seed']:,} steps at "
+              f"{summary['env_steps_per_s']:,.0f} env-steps/s")
     suites = ("letter/finite/ind", "letter/finite/ood")
     results = experiment.evaluate("genz", "LetterLTL0-v0", params, suites, episodes)
     report.write_json(out / "results.json", results, {"train": summary, "episodes": episodes})

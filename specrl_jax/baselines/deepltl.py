@@ -174,7 +174,7 @@ class DeepLTLTrainEnv:
         next_obs_, next_state = jax.tree.map(
             lambda a, b: jnp.where(done, a, b), (obs_reset, state_reset), (next_obs, state)
         )
-        f32 = lambda x: x.astype(jnp.float32)  # noqa: E731
+        f32 = lambda x: x.astype(jnp.float32)
         stats = {
             "episodes": f32(done), "successes": f32(succeeded), "violations": f32(violated),
             "_task_id": state.task_id, "_finished": done, "_success": succeeded,
@@ -224,8 +224,8 @@ def summarise(row: dict[str, float]) -> dict[str, float]:
 
 def ppo_config(**overrides: Any) -> PPOConfig:
     """DeepLTL's LetterWorld settings (16 x 128, minibatch 256, 8 epochs, entropy 0.01)."""
-    base = dict(num_envs=16, num_steps=128, num_minibatches=8, update_epochs=8, loss="ppo",
-                vf_coef=0.5, ent_coef=0.01, gamma=0.94, gae_lambda=0.95, lr=3e-4)
+    base = {"num_envs": 16, "num_steps": 128, "num_minibatches": 8, "update_epochs": 8, "loss": "ppo",
+                "vf_coef": 0.5, "ent_coef": 0.01, "gamma": 0.94, "gae_lambda": 0.95, "lr": 3e-4}
     return PPOConfig(**{**base, **overrides})
 
 

@@ -11,8 +11,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -51,7 +52,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
           log: Callable[[str], None] = print, max_wall_s: float | None = None) -> tuple[Any, dict[str, Any]]:
     """Train `num_seeds` runs; returns `(params with a leading seed axis, training summary)`."""
     key_bank, key_train = jax.random.split(jax.random.key(seed))
-    world, params, method_obj, config = build(method, env_id, ppo_overrides, map_bank, key_bank)
+    _world, _params, method_obj, config = build(method, env_id, ppo_overrides, map_bank, key_bank)
     trainer = make_train(config, method_obj)
     start = time.perf_counter()
     runner = runs.train_in_run_dir(
@@ -124,7 +125,8 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
     tables = []
     for s in range(num_seeds):
         start = time.perf_counter()
-        table = evaluator(jax.tree.map(lambda x: x[s], params), jnp.asarray([s + 1], jnp.uint32))
+        seed_params = jax.tree.map(lambda x, s=s: x[s], params)
+        table = evaluator(seed_params, jnp.asarray([s + 1], jnp.uint32))
         tables.append(jax.device_get(table))
         log(f"evaluated seed {s + 1}: {len(formulas)} specs x {episodes} episodes in "
             f"{time.perf_counter() - start:.1f}s")
@@ -151,9 +153,9 @@ def load_params(method: str, env_id: str, path: str | Path, num_seeds: int) -> A
 def default_overrides(device_kind: str, total_steps: int | None = None) -> dict[str, Any]:
     """Training shape: the reference's 16 x 128 on a CPU; 256 x 128 (minibatch 4096) on an
     accelerator, with the per-sample settings unchanged (docs/fidelity.md)."""
-    shape = dict(num_envs=16, num_steps=128, num_minibatches=8)
+    shape = {"num_envs": 16, "num_steps": 128, "num_minibatches": 8}
     if device_kind != "cpu":
-        shape = dict(num_envs=256, num_steps=128, num_minibatches=8)
+        shape = {"num_envs": 256, "num_steps": 128, "num_minibatches": 8}
     if total_steps is not None:
         shape["total_timesteps"] = int(total_steps)
     return shape

@@ -102,7 +102,7 @@ class GenZTrainEnv:
         next_obs, next_state = jax.tree.map(
             lambda a, b: jnp.where(done, a, b), (obs_reset, state_reset), (next_obs, next_state)
         )
-        f32 = lambda x: x.astype(jnp.float32)  # noqa: E731
+        f32 = lambda x: x.astype(jnp.float32)
         stats = {
             "episodes": f32(done),
             "reaches": f32(reached),
@@ -126,7 +126,7 @@ class GenZ:
     """The GenZ-LTL method for the shared trainer (LetterWorld)."""
 
     env: GenZTrainEnv
-    network: GenZNetwork = GenZNetwork()
+    network: GenZNetwork
 
     def init_task_params(self) -> Any:
         return None
@@ -151,10 +151,10 @@ def summarise(row: dict[str, float]) -> dict[str, float]:
 
 def ppo_config(**overrides: Any) -> PPOConfig:
     """GenZ-LTL's LetterWorld settings (RCO, c_v 1.0, up to 80 epochs with KL stop 0.015)."""
-    base = dict(
-        num_envs=16, num_steps=128, num_minibatches=8, update_epochs=80, target_kl=0.015,
-        loss="rco", vf_coef=1.0, ent_coef=0.01, gamma=0.94, gae_lambda=0.95, lr=3e-4,
-    )
+    base = {
+        "num_envs": 16, "num_steps": 128, "num_minibatches": 8, "update_epochs": 80, "target_kl": 0.015,
+        "loss": "rco", "vf_coef": 1.0, "ent_coef": 0.01, "gamma": 0.94, "gae_lambda": 0.95, "lr": 3e-4,
+    }
     return PPOConfig(**{**base, **overrides})
 
 

@@ -56,8 +56,8 @@ class ChainNet(nn.Module):
 
 @dataclasses.dataclass(frozen=True)
 class ChainMethod:
-    env: ChainEnv = ChainEnv()
-    network: ChainNet = ChainNet()
+    env: ChainEnv = dataclasses.field(default_factory=ChainEnv)
+    network: ChainNet = dataclasses.field(default_factory=ChainNet)
 
     def init_task_params(self):
         return jnp.zeros((), jnp.float32)

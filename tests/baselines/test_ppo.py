@@ -15,12 +15,17 @@ import pytest
 from specrl_jax.baselines import runs
 from specrl_jax.baselines.ppo import PPOConfig, make_train
 from specrl_jax.baselines.ppo.losses import (
-    Batch, LossConfig, compute_gae, compute_reachability_cost, ppo_loss, rco_loss,
+    Batch,
+    LossConfig,
+    compute_gae,
+    compute_reachability_cost,
+    ppo_loss,
+    rco_loss,
 )
 from specrl_jax.baselines.ppo.networks import Categorical, DiagGaussian, PolicyOutput
 
 sys.path.insert(0, str(Path(__file__).parent))
-from chain import ChainMethod  # noqa: E402
+from chain import ChainMethod
 
 TINY = PPOConfig(num_envs=4, num_steps=8, total_timesteps=4 * 8 * 4, update_epochs=2, num_minibatches=2)
 
@@ -58,7 +63,7 @@ def test_reachability_cost_matches_hand_computation():
 
 def _fixed_batch(n=6, actions=3, seed=0):
     rng = np.random.default_rng(seed)
-    f = lambda *s: rng.normal(size=s).astype(np.float32)  # noqa: E731
+    f = lambda *s: rng.normal(size=s).astype(np.float32)
     batch = Batch(
         obs=None, action=rng.integers(0, actions, n).astype(np.int32), log_prob=-np.abs(f(n)) - 0.5,
         value=f(n), cost_value=f(n), advantage=f(n), target=f(n), cost_advantage=f(n), cost_target=f(n),
@@ -91,7 +96,7 @@ def _np_parts(batch, out, logits, cfg):
 def test_ppo_loss_matches_numpy(normalize):
     cfg = LossConfig(ent_coef=0.01, vf_coef=0.5, normalize_advantages=normalize)
     batch, out, logits = _fixed_batch()
-    ratio, surr, entropy, vloss = _np_parts(batch, out, logits, cfg)
+    _ratio, surr, entropy, vloss = _np_parts(batch, out, logits, cfg)
     expected = -surr.mean() - 0.01 * entropy + 0.5 * vloss(out.value, batch.value, batch.target)
     loss, _ = ppo_loss(out, batch, cfg)
     np.testing.assert_allclose(loss, expected, rtol=1e-5)
@@ -140,7 +145,7 @@ def test_kl_early_stop_limits_epochs():
 def test_resume_gives_identical_continuation(tmp_path):
     trainer = make_train(TINY, ChainMethod())
     key = jax.random.key(3)
-    options = dict(chunk_updates=2, num_seeds=2, log=lambda s: None)
+    options = {"chunk_updates": 2, "num_seeds": 2, "log": lambda s: None}
     straight = runs.train_in_run_dir(trainer, key, tmp_path / "a", **options)
     runs.train_in_run_dir(trainer, key, tmp_path / "b", max_updates=2, **options)
     resumed = runs.train_in_run_dir(trainer, key, tmp_path / "b", **options)
@@ -178,5 +183,5 @@ def test_sharded_and_unsharded_runs_agree():
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=2", "JAX_PLATFORMS": "cpu"}
     env["PYTHONPATH"] = os.pathsep.join([str(Path(__file__).parents[2]), env.get("PYTHONPATH", "")])
     code = SHARDED.format(here=str(Path(__file__).parent))
-    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    proc = subprocess.run([sys.executable, "-c", code], check=False, env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0 and "OK" in proc.stdout, proc.stderr[-3000:]

@@ -10,7 +10,7 @@ trainer never changes per method. `make_train(config, method)` returns a `Traine
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, NamedTuple, Protocol
+from typing import Any, Protocol
 
 import flax.linen as nn
 import jax
