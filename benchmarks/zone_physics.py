@@ -26,10 +26,10 @@ import jax.numpy as jnp
 import jaxlib
 import mujoco
 import numpy as np
-from mujoco import mjx
 
 from specrl_jax.envs.zone import make_zone
 from specrl_jax.envs.zone.config import level_config
+from specrl_jax.envs.zone.mjx_import import mjx
 from specrl_jax.envs.zone.models import Solver
 
 

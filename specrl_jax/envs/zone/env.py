@@ -9,13 +9,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
-from mujoco import mjx
 
 from specrl_jax.envs import spaces
 from specrl_jax.envs.base import Env, Info, Obs
 from specrl_jax.envs.zone import labels as labels_lib
 from specrl_jax.envs.zone.config import ZoneConfig
 from specrl_jax.envs.zone.layout import check_feasible, sample_positions
+from specrl_jax.envs.zone.mjx_import import mjx
 from specrl_jax.envs.zone.models import ROBOTS, load_model
 from specrl_jax.envs.zone.sensors import compute_lidar, robot_sensor_reader, wall_sensor
 

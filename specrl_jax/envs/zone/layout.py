@@ -21,7 +21,6 @@ import numpy as np
 
 from specrl_jax.envs.zone.config import ZoneConfig
 
-
 MAX_PARALLEL = 16
 
 
