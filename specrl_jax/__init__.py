@@ -4,4 +4,4 @@ from specrl_jax.envs.registry import list_envs, make
 
 __version__ = "0.1.0"
 
-__all__ = ["make", "list_envs", "__version__"]
+__all__ = ["__version__", "list_envs", "make"]

@@ -4,4 +4,4 @@ from specrl_jax.envs.base import Env
 from specrl_jax.envs.registry import list_envs, make, register
 from specrl_jax.envs.wrappers import AutoReset, BatchedEnv, EpisodeStatistics, batch
 
-__all__ = ["Env", "AutoReset", "BatchedEnv", "EpisodeStatistics", "batch", "list_envs", "make", "register"]
+__all__ = ["AutoReset", "BatchedEnv", "Env", "EpisodeStatistics", "batch", "list_envs", "make", "register"]

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import difflib
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 _REGISTRY: dict[str, tuple[Callable[..., tuple[Any, Any]], str]] = {}
 
@@ -47,7 +48,7 @@ def _checked_id(env_id: str) -> str:
 
 def _load_worlds() -> None:
     """Import the world modules so that they register their IDs (idempotent)."""
-    import specrl_jax.envs.letter  # noqa: F401
+    import specrl_jax.envs.letter
 
     try:
         import specrl_jax.envs.zone  # noqa: F401
