@@ -14,6 +14,8 @@ from typing import Literal
 
 import spot
 
+from specrl_jax.automata.translate import parse_formula
+
 Alphabet = Literal["zero_or_one", "per_agent_zero_or_one", "all"]
 ALPHABETS = ("zero_or_one", "per_agent_zero_or_one", "all")
 _AGENT_SUFFIX = re.compile(r"^(.+)_(\d+)$")
@@ -25,19 +27,7 @@ def parse(formula: str, propositions: Sequence[str]) -> spot.formula:
     Raises:
         ValueError: the text does not parse, or it uses a proposition the world lacks.
     """
-    if not isinstance(formula, str):
-        raise TypeError(f"formula must be a string, got {type(formula).__name__}")
-    try:
-        parsed = spot.formula(formula)
-    except SyntaxError as err:
-        raise ValueError(f"Spot cannot parse {formula!r}: {err}") from None
-    unknown = sorted(str(ap) for ap in spot.atomic_prop_collect(parsed)) if parsed else []
-    unknown = [ap for ap in unknown if ap not in propositions]
-    if unknown:
-        raise ValueError(
-            f"formula {formula!r} uses {unknown}, not among the propositions {tuple(propositions)}"
-        )
-    return parsed
+    return parse_formula(formula, propositions)
 
 
 def alphabet_constraint(propositions: Sequence[str], alphabet: Alphabet = "zero_or_one") -> str:
