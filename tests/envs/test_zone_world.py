@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+import specrl_jax
 from specrl_jax.envs.zone import ZoneConfig
 from specrl_jax.envs.zone.config import level_config
 from specrl_jax.envs.zone.labels import alphabet, compute_labels
@@ -257,3 +258,10 @@ def test_moving_zones_run_circles_in_sim_time_with_key_drawn_direction_and_phase
     # the Ant's env step lasts 0.1 s of sim time: its zones move 5x further per step
     ant, _ = make_zone(level_config("Ant", 1))
     assert ant.frame_dt == pytest.approx(5 * env.frame_dt)
+
+
+def test_make_rejects_overrides_fixed_by_the_id():
+    with pytest.raises(ValueError, match="fixed by the env ID"):
+        specrl_jax.make("PointLTL0-v0", robot="Car")
+    with pytest.raises(ValueError, match="unknown ZoneParams fields"):
+        specrl_jax.make("PointLTL0-v0", speed=2.0)

@@ -31,6 +31,12 @@ def _factory(robot: str, level: int, partial: bool, overlap: bool):
     config_fields = {f.name for f in dataclasses.fields(ZoneConfig) if f.init}
 
     def build(**overrides: Any) -> tuple[ZoneEnv, ZoneParams]:
+        fixed = sorted(set(overrides) & {"robot", "partial", "overlap", "level"})
+        if fixed:
+            raise ValueError(
+                f"{fixed} are fixed by the env ID ({robot}, level {level}); pick another ID, or "
+                "build a custom world with make_zone(ZoneConfig(...))"
+            )
         config_kw = {k: v for k, v in overrides.items() if k in config_fields}
         params_kw = {k: v for k, v in overrides.items() if k not in config_fields}
         config = level_config(robot, level, partial, overlap, **config_kw)
