@@ -10,7 +10,8 @@ success / violation / accepting visit -> reward -> termination -> auto-reset.
   that never use epsilon edges can ignore them.
 - Finite-horizon (co-safe) specs end on success or violation; infinite-horizon ones on violation;
   both on the world's own termination, and are truncated at `params.max_steps` task steps.
-- Reward (the benchmark paper's training reward): +1 when the automaton makes progress (it
+- Reward (a progress reward in the spirit of the paper's; docs/fidelity.md says how it differs
+  from DeepLTL's and GenZ-LTL's): +1 when the automaton makes progress (it
   leaves its state for a non-violating one, or takes an accepting transition: the current
   reach subgoal is achieved), -1 when it enters a violating state (an avoid subgoal is hit),
   0 otherwise, epsilon steps included.
@@ -124,7 +125,7 @@ class TaskEnv:
         """One task step without auto-reset: `(obs, state, reward, terminated, truncated, info)`."""
         params = self.env.default_params if params is None else params
         spec = state.spec
-        is_epsilon = jnp.asarray(take_epsilon, bool) & (spec.epsilon[state.q, 0] >= 0)
+        is_epsilon = (automata.epsilon_slot(take_epsilon) >= 0) & (spec.epsilon[state.q, 0] >= 0)
         obs_env, env_state, _, env_terminated, _, env_info = self.env.step(
             key, state.env_state, action, params
         )

@@ -2,6 +2,7 @@
 
 from specrl_jax.automata.stepping import (
     check_labels,
+    epsilon_slot,
     has_epsilon,
     step,
     step_checked,
@@ -16,6 +17,7 @@ __all__ = [
     "all_subsets",
     "check_labels",
     "compile_spec",
+    "epsilon_slot",
     "has_epsilon",
     "product",
     "stack",

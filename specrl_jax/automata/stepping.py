@@ -34,6 +34,15 @@ def has_epsilon(spec: CompiledSpec, q: jax.Array) -> jax.Array:
     return spec.epsilon[q, 0] >= 0
 
 
+def epsilon_slot(take_epsilon: jax.Array | bool | int) -> jax.Array:
+    """int32[]: the epsilon slot asked for; a bool means slot 0 (True) or none (False), an
+    integer is the slot itself, and any negative value means none."""
+    take = jnp.asarray(take_epsilon)
+    if take.dtype == jnp.bool_:
+        return jnp.where(take, 0, -1).astype(jnp.int32)
+    return take.astype(jnp.int32)
+
+
 def step(
     spec: CompiledSpec, q: jax.Array, props: jax.Array, take_epsilon: jax.Array
 ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
@@ -51,8 +60,7 @@ def step(
          success bool[], violation bool[]) where success / violation are flags of q_next.
         A label outside the alphabet leaves q unchanged in this unchecked variant.
     """
-    take = jnp.asarray(take_epsilon)
-    slot = jnp.where(take, 0, -1) if take.dtype == jnp.bool_ else take.astype(jnp.int32)
+    slot = epsilon_slot(take_epsilon)
     symbol = symbol_index(spec, props)
     is_eps = slot >= 0
     eps_target = spec.epsilon[q, jnp.clip(slot, 0, spec.epsilon.shape[-1] - 1)]
@@ -82,8 +90,7 @@ def step_in_batch(
         spec_id: int32[] which spec.
         q, props, take_epsilon: as in `step`.
     """
-    take = jnp.asarray(take_epsilon)
-    slot = jnp.where(take, 0, -1) if take.dtype == jnp.bool_ else take.astype(jnp.int32)
+    slot = epsilon_slot(take_epsilon)
     match = jnp.all(specs.alphabet[0] == props.astype(bool)[None, :], axis=-1)
     known = match.any()
     sym = jnp.argmax(match)
@@ -104,7 +111,7 @@ def step_checked(
     Use as `checkify.checkify(jax.jit(step_checked))(...)` (then `err.throw()`), or eagerly.
     """
     checkify.check(
-        jnp.asarray(take_epsilon).astype(bool) | (symbol_index(spec, props) >= 0),
+        (epsilon_slot(take_epsilon) >= 0) | (symbol_index(spec, props) >= 0),
         "label {} is not an assignment of the spec's alphabet",
         props.astype(jnp.int32),
     )

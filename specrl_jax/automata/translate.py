@@ -27,7 +27,7 @@ import buddy  # isort: skip  (importable once spot has put its own directory on 
 from specrl_jax.automata import graph
 
 MAX_SYMBOLS = 4096
-MAX_STATES = 512
+MAX_STATES = 1024
 
 
 @dataclasses.dataclass(frozen=True)

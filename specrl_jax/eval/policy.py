@@ -21,6 +21,8 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from specrl_jax.automata import epsilon_slot
+
 
 class StatefulPolicy(NamedTuple):
     """A policy with per-episode memory (see the module docstring for the signatures)."""
@@ -49,7 +51,8 @@ def as_stateful(policy: Callable[..., Any] | StatefulPolicy) -> StatefulPolicy:
 
 
 def split_action(output: Any) -> tuple[jax.Array, jax.Array]:
-    """`action` or `(action, take_epsilon)` -> `(action, take_epsilon bool[])`."""
+    """`action` or `(action, take_epsilon)` -> `(action, take_epsilon bool[])`; an integer
+    `take_epsilon` is a slot as in `automata.step` (negative: none)."""
     if isinstance(output, tuple):
         if len(output) != 2:
             raise TypeError(
@@ -57,7 +60,7 @@ def split_action(output: Any) -> tuple[jax.Array, jax.Array]:
                 f"{len(output)} elements"
             )
         action, take_epsilon = output
-        return action, jnp.asarray(take_epsilon, bool)
+        return action, epsilon_slot(take_epsilon) >= 0
     return output, jnp.zeros((), bool)
 
 

@@ -101,9 +101,10 @@ def test_symbol_index_and_checked_mode():
         assert int(symbol_index(spec, spec.alphabet[row])) == row
     two = jnp.array([True, True, False, False])
     assert int(symbol_index(spec, two)) == -1
-    err, _ = checkify.checkify(jax.jit(step_checked))(spec, spec.init, two, False)
-    with pytest.raises(checkify.JaxRuntimeError, match="not an assignment"):
-        err.throw()
+    for no_epsilon in (False, jnp.int32(-1)):  # a bool or a negative slot: no epsilon move
+        err, _ = checkify.checkify(jax.jit(step_checked))(spec, spec.init, two, no_epsilon)
+        with pytest.raises(checkify.JaxRuntimeError, match="not an assignment"):
+            err.throw()
     err, out = checkify.checkify(jax.jit(step_checked))(spec, spec.init, spec.alphabet[1], False)
     err.throw()
     assert bool(out[2])  # F a: success after a

@@ -14,7 +14,7 @@ from eval.tiny_world import (
 )
 
 from specrl_jax.eval.evaluate import evaluate, record_episodes
-from specrl_jax.eval.policy import StatefulPolicy, random_policy
+from specrl_jax.eval.policy import StatefulPolicy, random_policy, split_action
 from specrl_jax.tasks import TaskEnv
 
 ENV = TinyWorld()
@@ -107,3 +107,11 @@ def test_bad_arguments():
     with pytest.raises(TypeError, match="suite"):
         evaluate(random_policy(ENV), (ENV, PARAMS), "letter/finite/ind", seeds=[1],
                  episodes_per_seed=1)
+
+
+def test_split_action_reads_epsilon_flags_and_slots():
+    for flag, expected in ((True, True), (False, False), (jnp.int32(0), True), (jnp.int32(-1), False)):
+        _, take = split_action((jnp.int32(2), flag))
+        assert take.dtype == jnp.bool_ and bool(take) is expected
+    action, take = split_action(jnp.int32(3))
+    assert int(action) == 3 and not bool(take)
