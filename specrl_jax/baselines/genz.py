@@ -39,7 +39,7 @@ def reduce_observation(obs: dict[str, jax.Array], reach: jax.Array, avoid: jax.A
     reach_map = jnp.any(ap & reach, axis=-1)
     avoid_map = jnp.any(ap & avoid, axis=-1)
     image = jnp.where(reach_map, REACH, jnp.where(avoid_map, AVOID, 0.0))
-    image = jnp.where((image == 0) & obs["ego"][..., 0].astype(bool), AGENT, image)
+    image = jnp.where(obs["ego"][..., 0].astype(bool), AGENT, image)  # drawn last, as the reference
     return image[..., None].astype(jnp.float32)
 
 
@@ -203,7 +203,8 @@ def make_policy(network: nn.Module, alphabet: jax.Array, deterministic: bool = T
 
     Plans at the first step and whenever the automaton state changes: the candidate maximising
     `V_r - clip(lam, 0.01, 5) V_c` on its reduced observation. After `replan_steps` steps in one
-    plan the candidate is marked infeasible and the next best is taken. Actions are the policy's
+    plan its reach proposition is marked infeasible (every candidate reaching it) and the next best
+    is taken. Actions are the policy's
     mode (`deterministic`, the reference's setting) or samples.
     """
     alphabet = jnp.asarray(alphabet, bool)
@@ -225,8 +226,11 @@ def make_policy(network: nn.Module, alphabet: jax.Array, deterministic: bool = T
     def apply(params, obs, task_state, carry: PlanCarry, key):
         moved = task_state.q != carry.q
         timed_out = carry.steps >= replan_steps
-        infeasible = jnp.where(moved, False, carry.infeasible)
-        infeasible = infeasible.at[carry.candidate].set(infeasible[carry.candidate] | (timed_out & ~moved))
+        # A timeout gives up the reach proposition itself (every candidate that shares it), as
+        # the reference marks the reach assignment infeasible at the current automaton state.
+        reach_all, _, _ = candidate_masks(task_state.spec, task_state.q, alphabet)
+        same_reach = jnp.all(reach_all == carry.reach, axis=-1)
+        infeasible = jnp.where(moved, False, carry.infeasible) | (timed_out & ~moved & same_reach)
         carry = jax.lax.cond(moved | timed_out, lambda: plan(params, obs, task_state, infeasible), lambda: carry)
         out = network.apply(params, reduce_observation(obs, carry.reach, carry.avoid))
         action = out.pi.mode() if deterministic else out.pi.sample(key)

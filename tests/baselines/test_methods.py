@@ -4,9 +4,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import specrl_jax
+from specrl_jax import automata
 from specrl_jax.baselines import deepltl, genz
 from specrl_jax.baselines.ppo import make_train
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
+from specrl_jax.tasks import TaskEnv
 
 
 def test_genz_learns_to_reach_on_a_tiny_letter_world():
@@ -35,6 +38,30 @@ def test_reduced_observation_marks_reach_avoid_and_agent():
     expected = np.zeros((3, 3))
     expected[0, 0], expected[0, 1], expected[1, 1] = 1.0, 0.5, 0.2
     np.testing.assert_allclose(image, expected)
+    ap[1, 1, 0] = 1  # standing on a reach letter: the agent is drawn on top
+    image = genz.reduce_observation(
+        {"ap": jnp.asarray(ap), "ego": jnp.asarray(ego)},
+        jnp.array([True, False, False]), jnp.array([False, True, False]),
+    )[..., 0]
+    assert np.isclose(float(image[1, 1]), 0.2)
+
+
+def test_genz_timeout_gives_up_the_reach_proposition():
+    env, params = specrl_jax.make("LetterLTL0-v0")
+    spec = automata.compile_spec("F a & F b & F c", env.propositions, alphabet=env.alphabet)
+    task = TaskEnv(env, automata.stack([spec]))
+    obs, task_state = task.reset(jax.random.key(0), params, spec_index=0)
+    network = genz.GenZNetwork()
+    net_params = network.init(jax.random.key(1), jnp.zeros((7, 7, 1)))
+    policy = genz.make_policy(network, env.alphabet, replan_steps=1)
+    carry = policy.init(net_params, obs, task_state, jax.random.key(2))
+    chosen = [np.asarray(carry.reach)]
+    for i in range(4):  # the automaton never moves: every second call times out and replans
+        _, carry = policy.apply(net_params, obs, task_state, carry, jax.random.key(3 + i))
+        chosen.append(np.asarray(carry.reach))
+    letters = [int(np.argmax(r)) for r in chosen]
+    assert all(r.sum() == 1 for r in chosen)
+    assert sorted(set(letters)) == [0, 1, 2], letters  # a, b, c each tried, none twice in a row
 
 
 def test_sequence_encoder_reads_only_the_remaining_pairs():
