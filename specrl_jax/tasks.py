@@ -125,7 +125,9 @@ class TaskEnv:
         """One task step without auto-reset: `(obs, state, reward, terminated, truncated, info)`."""
         params = self.env.default_params if params is None else params
         spec = state.spec
-        is_epsilon = (automata.epsilon_slot(take_epsilon) >= 0) & (spec.epsilon[state.q, 0] >= 0)
+        slot = automata.epsilon_slot(take_epsilon)
+        num_slots = spec.epsilon.shape[-1]
+        is_epsilon = (slot >= 0) & (spec.epsilon[state.q, jnp.clip(slot, 0, num_slots - 1)] >= 0)
         obs_env, env_state, _, env_terminated, _, env_info = self.env.step(
             key, state.env_state, action, params
         )
@@ -134,7 +136,8 @@ class TaskEnv:
         propositions = jnp.where(is_epsilon, state.propositions, env_info["propositions"])
         env_terminated = ~is_epsilon & env_terminated
 
-        q_next, accepted, success, violation = automata.step(spec, state.q, propositions, is_epsilon)
+        q_next, accepted, success, violation = automata.step(spec, state.q, propositions,
+                                                             jnp.where(is_epsilon, slot, -1))
         success = success & spec.is_finite
         reward = reward_progress(state.q, q_next, accepted, violation, is_epsilon)
         time = state.time + 1

@@ -156,3 +156,20 @@ def test_spot_compiled_spec_behaves_as_the_hand_built_one():
     assert (r1, t1, r2, t2, bool(i2["success"])) == (1.0, False, 1.0, True, True)
     (_, r, t, _, info), = play(step, start(task, 0), [DOWN])
     assert (r, t, bool(info["violation"])) == (-1.0, True, True)
+
+
+def test_epsilon_slot_chooses_among_several_epsilon_edges():
+    from specrl_jax import automata
+
+    world = TinyWorld()
+    props = world.propositions
+    compiled = automata.compile_spec(f"(FG {props[0]}) | (GF {props[1]} & GF {props[2]})", props,
+                                     alphabet=world.alphabet)
+    targets = np.asarray(compiled.epsilon)[int(compiled.init)]
+    assert (targets >= 0).sum() == 2 and targets[0] != targets[1]
+    task = TaskEnv(world, automata.stack([compiled]))
+    for slot in (0, 1):
+        state = start(task, 0)
+        _, state, _, _, _, info = jax.jit(task.step_task)(
+            jax.random.key(0), state, RIGHT, None, jnp.int32(slot))
+        assert bool(info["epsilon"]) and int(state.q) == targets[slot]

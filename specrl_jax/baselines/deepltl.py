@@ -268,6 +268,7 @@ def make_policy(network: nn.Module, alphabet: jax.Array, num_actions: int = 4,
         pi = network.apply(params, seq_obs(obs, task_state, carry.candidate)).pi
         action = pi.mode() if deterministic else pi.sample(key)
         take_epsilon = action == num_actions
-        return (jnp.where(take_epsilon, 0, action), take_epsilon), carry
+        slot = task_state.spec.seq_epsilon_slot[task_state.q, carry.candidate, 0]
+        return (jnp.where(take_epsilon, 0, action), jnp.where(take_epsilon, slot, -1)), carry
 
     return StatefulPolicy(init, apply)

@@ -51,8 +51,9 @@ def as_stateful(policy: Callable[..., Any] | StatefulPolicy) -> StatefulPolicy:
 
 
 def split_action(output: Any) -> tuple[jax.Array, jax.Array]:
-    """`action` or `(action, take_epsilon)` -> `(action, take_epsilon bool[])`; an integer
-    `take_epsilon` is a slot as in `automata.step` (negative: none)."""
+    """`action` or `(action, take_epsilon)` -> `(action, epsilon slot int32[])`: a bool
+    `take_epsilon` means slot 0 or none, an integer is the slot itself (negative: none), as in
+    `automata.step`."""
     if isinstance(output, tuple):
         if len(output) != 2:
             raise TypeError(
@@ -60,8 +61,8 @@ def split_action(output: Any) -> tuple[jax.Array, jax.Array]:
                 f"{len(output)} elements"
             )
         action, take_epsilon = output
-        return action, epsilon_slot(take_epsilon) >= 0
-    return output, jnp.zeros((), bool)
+        return action, epsilon_slot(take_epsilon)
+    return output, jnp.full((), -1, jnp.int32)
 
 
 def random_policy(env: Any) -> Callable[..., jax.Array]:

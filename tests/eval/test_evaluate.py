@@ -109,9 +109,9 @@ def test_bad_arguments():
                  episodes_per_seed=1)
 
 
-def test_split_action_reads_epsilon_flags_and_slots():
-    for flag, expected in ((True, True), (False, False), (jnp.int32(0), True), (jnp.int32(-1), False)):
+def test_split_action_turns_epsilon_flags_into_slots():
+    for flag, slot in ((True, 0), (False, -1), (jnp.int32(1), 1), (jnp.int32(-1), -1)):
         _, take = split_action((jnp.int32(2), flag))
-        assert take.dtype == jnp.bool_ and bool(take) is expected
+        assert take.dtype == jnp.int32 and int(take) == slot
     action, take = split_action(jnp.int32(3))
-    assert int(action) == 3 and not bool(take)
+    assert int(action) == 3 and int(take) == -1
