@@ -21,7 +21,7 @@ import numpy as np
 from flax import serialization
 
 from specrl_jax.baselines import deepltl, genz, runs
-from specrl_jax.baselines.ppo import PPOConfig, make_train
+from specrl_jax.baselines.ppo import make_train
 from specrl_jax.envs.registry import make
 
 METHODS = {"genz": genz, "deepltl": deepltl}
@@ -161,5 +161,3 @@ def default_overrides(device_kind: str, total_steps: int | None = None) -> dict[
     return shape
 
 
-def ppo_fields() -> tuple[str, ...]:
-    return tuple(f.name for f in dataclasses.fields(PPOConfig))

@@ -17,7 +17,6 @@ import abc
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 
 Obs = dict[str, jax.Array]
 Info = dict[str, Any]
@@ -86,7 +85,3 @@ class Env(abc.ABC):
     def __repr__(self) -> str:
         return f"{type(self).__name__}({getattr(self, 'config', '')})"
 
-
-def zeros_like_propositions(num_propositions: int) -> jax.Array:
-    """`bool[P]` with nothing true, the label reported at reset."""
-    return jnp.zeros((num_propositions,), dtype=bool)
