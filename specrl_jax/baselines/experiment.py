@@ -159,5 +159,3 @@ def default_overrides(device_kind: str, total_steps: int | None = None) -> dict[
     if total_steps is not None:
         shape["total_timesteps"] = int(total_steps)
     return shape
-
-
