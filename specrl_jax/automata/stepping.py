@@ -11,7 +11,13 @@ import jax.numpy as jnp
 import numpy as np
 from jax.experimental import checkify
 
-from specrl_jax.automata.tensors import CompiledSpec
+from specrl_jax.automata.tensors import (
+    ACCEPTED_BIT,
+    STATE_MASK,
+    SUCCESS_BIT,
+    VIOLATION_BIT,
+    CompiledSpec,
+)
 
 
 def symbol_index(spec: CompiledSpec, props: jax.Array) -> jax.Array:
@@ -43,10 +49,30 @@ def epsilon_slot(take_epsilon: jax.Array | bool | int) -> jax.Array:
     return take.astype(jnp.int32)
 
 
+def _column(alphabet: jax.Array, props: jax.Array, take_epsilon) -> jax.Array:
+    """int32[]: the `step_table` column of a step (symbol, unknown label, or epsilon slot)."""
+    num_symbols, num_props = alphabet.shape
+    slot = epsilon_slot(take_epsilon)
+    if num_props <= 30:
+        # compare one integer code per symbol instead of P booleans
+        weights = jnp.left_shift(1, jnp.arange(num_props, dtype=jnp.int32))
+        codes = jnp.sum(jnp.where(alphabet, weights, 0), axis=-1)
+        match = codes == jnp.sum(jnp.where(props.astype(bool), weights, 0))
+    else:
+        match = jnp.all(alphabet == props.astype(bool)[None, :], axis=-1)
+    symbol = jnp.where(match.any(), jnp.argmax(match), num_symbols)
+    return jnp.where(slot >= 0, num_symbols + 1 + slot, symbol).astype(jnp.int32)
+
+
+def _unpack(word: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    return (word & STATE_MASK, (word & ACCEPTED_BIT) != 0, (word & SUCCESS_BIT) != 0,
+            (word & VIOLATION_BIT) != 0)
+
+
 def step(
     spec: CompiledSpec, q: jax.Array, props: jax.Array, take_epsilon: jax.Array
 ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
-    """One automaton step.
+    """One automaton step (one gather from `spec.step_table`).
 
     Args:
         spec: a compiled spec.
@@ -60,17 +86,8 @@ def step(
          success bool[], violation bool[]) where success / violation are flags of q_next.
         A label outside the alphabet leaves q unchanged in this unchecked variant.
     """
-    slot = epsilon_slot(take_epsilon)
-    symbol = symbol_index(spec, props)
-    is_eps = slot >= 0
-    eps_target = spec.epsilon[q, jnp.clip(slot, 0, spec.epsilon.shape[-1] - 1)]
-    eps_next = jnp.where(eps_target >= 0, eps_target, q)
-    sym = jnp.maximum(symbol, 0)
-    known = symbol >= 0
-    label_next = jnp.where(known, spec.delta[q, sym], q)
-    q_next = jnp.where(is_eps, eps_next, label_next).astype(jnp.int32)
-    accepted = ~is_eps & known & spec.accepting[q, sym]
-    return q_next, accepted, spec.success[q_next], spec.violation[q_next]
+    column = _column(spec.alphabet, props, take_epsilon)
+    return _unpack(spec.step_table[q, jnp.minimum(column, spec.step_table.shape[-1] - 1)])
 
 
 def step_in_batch(
@@ -80,27 +97,19 @@ def step_in_batch(
     props: jax.Array,
     take_epsilon: jax.Array,
 ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
-    """`step` on spec `spec_id` of a stacked batch, reading only the entries it needs.
+    """`step` on spec `spec_id` of a stacked batch, reading only the word it needs.
 
     Equal to `step(jax.tree.map(lambda x: x[spec_id], specs), q, props, take_epsilon)`, but
-    under `vmap` over environments it gathers single entries instead of whole tables.
+    under `vmap` over environments it gathers one entry instead of whole tables.
 
     Args:
         specs: stacked specs (`stack`), one shared alphabet.
         spec_id: int32[] which spec.
         q, props, take_epsilon: as in `step`.
     """
-    slot = epsilon_slot(take_epsilon)
-    match = jnp.all(specs.alphabet[0] == props.astype(bool)[None, :], axis=-1)
-    known = match.any()
-    sym = jnp.argmax(match)
-    is_eps = slot >= 0
-    eps_target = specs.epsilon[spec_id, q, jnp.clip(slot, 0, specs.epsilon.shape[-1] - 1)]
-    eps_next = jnp.where(eps_target >= 0, eps_target, q)
-    label_next = jnp.where(known, specs.delta[spec_id, q, sym], q)
-    q_next = jnp.where(is_eps, eps_next, label_next).astype(jnp.int32)
-    accepted = ~is_eps & known & specs.accepting[spec_id, q, sym]
-    return q_next, accepted, specs.success[spec_id, q_next], specs.violation[spec_id, q_next]
+    column = _column(specs.alphabet[0], props, take_epsilon)
+    table = specs.step_table
+    return _unpack(table[spec_id, q, jnp.minimum(column, table.shape[-1] - 1)])
 
 
 def step_checked(

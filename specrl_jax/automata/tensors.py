@@ -37,6 +37,9 @@ class CompiledSpec:
         seq_reach, seq_avoid: bool[S, C, L, A]; seq_epsilon: bool[S, C, L];
         seq_epsilon_slot: int32[S, C, L] (epsilon edge to take, -1 if not an epsilon step);
         seq_length: int32[S, C]; seq_valid: bool[S, C]: DeepLTL's candidate sequences.
+        step_table: int32[S, A + 1 + E] every step outcome packed in one word (`pack_step_table`):
+            column a < A reads symbol a, column A an unknown label (stay), column A + 1 + e
+            epsilon slot e (stay where the slot is empty). Derived from the fields above.
     """
 
     delta: jnp.ndarray
@@ -57,6 +60,7 @@ class CompiledSpec:
     seq_epsilon_slot: jnp.ndarray
     seq_length: jnp.ndarray
     seq_valid: jnp.ndarray
+    step_table: jnp.ndarray
 
     @property
     def num_states(self) -> int:
@@ -69,6 +73,31 @@ class CompiledSpec:
 
 
 FIELDS = tuple(CompiledSpec.__dataclass_fields__)
+_DERIVED = ("step_table",)
+_STORED = tuple(f for f in FIELDS if f not in _DERIVED)
+
+STATE_MASK = (1 << 28) - 1
+ACCEPTED_BIT = 1 << 28
+SUCCESS_BIT = 1 << 29
+VIOLATION_BIT = 1 << 30
+
+
+def pack_step_table(arrays: dict[str, np.ndarray]) -> np.ndarray:
+    """int32[S, A + 1 + E]: next state | accepted << 28 | success << 29 | violation << 30.
+
+    The flags are those of the transition (accepted) and of the state it leads to, so one
+    gather answers a whole `step`.
+    """
+    delta, epsilon = arrays["delta"], arrays["epsilon"]
+    num_states = delta.shape[0]
+    stay = np.arange(num_states)
+    eps_next = np.where(epsilon >= 0, epsilon, stay[:, None])
+    nxt = np.concatenate([delta, stay[:, None], eps_next], axis=1).astype(np.int64)
+    accepted = np.concatenate([arrays["accepting"], np.zeros_like(eps_next[:, :1], bool),
+                               np.zeros_like(eps_next, bool)], axis=1)
+    packed = (nxt | accepted * ACCEPTED_BIT | arrays["success"][nxt] * SUCCESS_BIT
+              | arrays["violation"][nxt] * VIOLATION_BIT)
+    return packed.astype(np.int32)
 
 
 def compile_spec(
@@ -109,12 +138,14 @@ def compile_spec(
     key = cache.cache_key(formula if isinstance(formula, str) else repr(formula), propositions,
                           alphabet, max_sequences=max_sequences, max_length=max_length)
     arrays = cache.load(key) if use_cache else None
-    if arrays is None or set(arrays) != set(FIELDS):
+    if arrays is None or set(arrays) != set(_STORED):
         arrays = _build(formula, propositions, alphabet, max_sequences, max_length)
         if use_cache:
             cache.save(key, arrays)
+    arrays = {name: np.asarray(arrays[name]) for name in _STORED}
+    arrays["step_table"] = pack_step_table(arrays)
     # device_put is a plain copy; jnp.asarray would dispatch (and compile) one op per shape
-    return CompiledSpec(**jax.device_put({name: np.asarray(arrays[name]) for name in FIELDS}))
+    return CompiledSpec(**jax.device_put(arrays))
 
 
 def _build(formula, propositions, alphabet, max_sequences, max_length) -> dict[str, np.ndarray]:
@@ -175,7 +206,7 @@ def stack(specs: Sequence[CompiledSpec]) -> CompiledSpec:
                              "together must be compiled over the same alphabet")
     size = {ax: max(np.shape(getattr(s, f))[d] for s in specs) for ax, (f, d) in _AXIS.items()}
     out = {}
-    for name in FIELDS:
+    for name in _STORED:
         axes, fill = _PAD[name]
         padded = []
         for spec in specs:
@@ -191,4 +222,6 @@ def stack(specs: Sequence[CompiledSpec]) -> CompiledSpec:
                 arr[extra] = extra[:, None]
             padded.append(arr)
         out[name] = np.stack(padded)
+    out["step_table"] = np.stack([
+        pack_step_table({name: out[name][i] for name in _STORED}) for i in range(len(specs))])
     return CompiledSpec(**jax.device_put(out))

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from specrl_jax.automata.tensors import pack_step_table
 from specrl_jax.envs.base import Env
 from specrl_jax.envs.spaces import Box, Dict, Discrete
 
@@ -104,6 +105,7 @@ class HandSpec:
     init: jax.Array
     is_finite: jax.Array
     alphabet: jax.Array
+    step_table: jax.Array
 
 
 NUM_STATES = 4
@@ -125,9 +127,11 @@ def hand_spec(delta, accepting_into=(), accepting_edges=(), epsilon=None, succes
     for q, target in (epsilon or {}).items():
         eps[q, 0] = target
     mask = lambda idx: np.isin(np.arange(NUM_STATES), list(idx))
-    return HandSpec(jnp.asarray(full), jnp.asarray(accepting), jnp.asarray(eps),
-                    jnp.asarray(mask(success)), jnp.asarray(mask(violation)),
-                    jnp.asarray(0, jnp.int32), jnp.asarray(finite), jnp.asarray(ALPHABET))
+    arrays = {"delta": full, "accepting": accepting, "epsilon": eps,
+              "success": mask(success), "violation": mask(violation)}
+    return HandSpec(**{k: jnp.asarray(v) for k, v in arrays.items()},
+                    init=jnp.asarray(0, jnp.int32), is_finite=jnp.asarray(finite),
+                    alphabet=jnp.asarray(ALPHABET), step_table=jnp.asarray(pack_step_table(arrays)))
 
 
 def reach_avoid_spec() -> HandSpec:
