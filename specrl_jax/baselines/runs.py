@@ -87,14 +87,15 @@ def train_in_run_dir(
     if (run_dir / CHECKPOINT).exists():
         runner = load_checkpoint(run_dir / CHECKPOINT, runner)
         log(f"resumed at update {int(runner.update[0])} from {run_dir / CHECKPOINT}")
-    updates = jax.jit(jax.vmap(trainer.updates, in_axes=(0, None)), static_argnums=1, donate_argnums=0)
+    # One compiled chunk for every chunk: a shorter last chunk runs the same scan, partly idle.
+    updates = jax.jit(jax.vmap(trainer.updates, in_axes=(0, None, None)), static_argnums=1, donate_argnums=0)
     total = cfg.num_updates if max_updates is None else min(cfg.num_updates, max_updates)
     start_wall = time.perf_counter()
     done_at_start = done = int(runner.update[0])
     with open(run_dir / "metrics.jsonl", "a") as out:
         while done < total:
             n = min(chunk_updates, total - done)
-            runner, metrics = updates(runner, n)
+            runner, metrics = updates(runner, chunk_updates, jnp.int32(n))
             rows = _rows(jax.device_get(metrics), n, summarise)
             done += n
             elapsed = time.perf_counter() - start_wall

@@ -142,6 +142,43 @@ def test_kl_early_stop_limits_epochs():
     assert np.all(m_tight["epochs"] == 1)
 
 
+def test_partly_active_chunks_continue_like_a_full_chunk():
+    # one compiled 3-update chunk: 2 active then 1 active must equal 3 active
+    trainer = make_train(TINY, ChainMethod())
+    updates = jax.jit(trainer.updates, static_argnums=1)
+    runner = jax.jit(trainer.init)(jax.random.key(5))
+    full, m_full = updates(runner, 3, jnp.int32(3))
+    part, m_part = updates(runner, 3, jnp.int32(2))
+    assert int(part.update) == 2 and m_part["epochs"][2] == 0  # the idle update computed nothing
+    rest, m_rest = updates(part, 3, jnp.int32(1))
+    assert int(rest.update) == int(full.update) == 3
+    for a, b in zip(jax.tree.leaves(full.params), jax.tree.leaves(rest.params)):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(jax.random.key_data(full.key), jax.random.key_data(rest.key))
+    rewards = np.concatenate([m_part["reward"][:2], m_rest["reward"][:1]])
+    np.testing.assert_array_equal(rewards, m_full["reward"])
+
+
+def test_letter_cnn_matches_the_library_convolution():
+    import flax.linen as nn
+
+    from specrl_jax.baselines.ppo.networks import LetterCNN
+
+    image = jax.random.uniform(jax.random.key(0), (3, 7, 7, 2))
+    cnn = LetterCNN()
+    params = cnn.init(jax.random.key(1), image)["params"]
+
+    @jax.jit
+    def reference(p, x):
+        for i, width in enumerate(cnn.channels):
+            x = nn.relu(nn.Conv(width, (2, 2), padding="VALID").apply({"params": p[f"Conv_{i}"]}, x))
+        return x.reshape(x.shape[0], -1)
+
+    out = jax.jit(cnn.apply)({"params": params}, image)
+    assert out.shape == (3, 4 * 4 * 64)
+    np.testing.assert_allclose(out, reference(params, image), rtol=1e-5, atol=1e-6)
+
+
 def test_resume_gives_identical_continuation(tmp_path):
     trainer = make_train(TINY, ChainMethod())
     key = jax.random.key(3)

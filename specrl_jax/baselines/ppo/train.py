@@ -209,9 +209,22 @@ class Trainer:
         )
         return params, opt_state, metrics, epochs
 
-    def updates(self, runner: RunnerState, num_updates: int) -> tuple[RunnerState, dict[str, jax.Array]]:
-        """`num_updates` updates in one scan; metrics stacked `[num_updates]`."""
-        return jax.lax.scan(lambda r, _: self.update(r), runner, None, length=num_updates)
+    def updates(self, runner: RunnerState, num_updates: int,
+                active: jax.Array | None = None) -> tuple[RunnerState, dict[str, jax.Array]]:
+        """`num_updates` updates in one scan; metrics stacked `[num_updates]`.
+
+        `active` (int32 scalar, may be traced; keep it unbatched under `vmap`) runs only the first
+        `active` updates and passes the state through the rest (their metrics are zeros), so one
+        compiled chunk also serves a shorter last chunk.
+        """
+        if active is None:
+            return jax.lax.scan(lambda r, _: self.update(r), runner, None, length=num_updates)
+        skipped = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(self.update, runner)[1])
+
+        def body(r, i):
+            return jax.lax.cond(i < active, self.update, lambda r: (r, skipped), r)
+
+        return jax.lax.scan(body, runner, jnp.arange(num_updates))
 
     def __call__(self, key: jax.Array) -> tuple[RunnerState, dict[str, jax.Array]]:
         return self.updates(self.init(key), self.config.num_updates)
