@@ -7,7 +7,8 @@ state-dependent Lagrange multiplier, on the uniform distribution of one-step sub
 letter, avoid 0-3 others); +1 on reach, then a fresh subgoal with the return cut there; cost +1
 and termination on an avoided letter, -1 otherwise. At test time (`make_policy`) the automaton
 state's candidate subgoals are scored by `V_r - lam V_c` and the best is followed until the
-state changes or a step budget passes without progress.
+state changes or a step budget passes without progress; with no candidate left the episode is
+given up (aborted), as the reference's `NoPathsException`.
 """
 
 from __future__ import annotations
@@ -169,7 +170,7 @@ class PlanCarry(NamedTuple):
     candidate: jax.Array  # int32[], index of the chosen (sequence, proposition) candidate
     infeasible: jax.Array  # bool[C * P], candidates given up in this automaton state
     steps: jax.Array  # int32[], steps since the plan was made
-    stuck: jax.Array  # bool[], no candidate left
+    stuck: jax.Array  # bool[], no candidate left: the episode is given up
 
 
 def candidate_masks(spec: Any, q: jax.Array, alphabet: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
@@ -202,9 +203,12 @@ def make_policy(network: nn.Module, alphabet: jax.Array, deterministic: bool = T
     """GenZ-LTL's test-time agent as a `StatefulPolicy` for `specrl_jax.eval.evaluate`.
 
     Plans at the first step and whenever the automaton state changes: the candidate maximising
-    `V_r - clip(lam, 0.01, 5) V_c` on its reduced observation. After `replan_steps` steps in one
-    plan its reach proposition is marked infeasible (every candidate reaching it) and the next best
-    is taken. Actions are the policy's
+    `V_r - lam V_c` on its reduced observation, with the multiplier net's own `lam` (the clamp to
+    [0.01, 5] belongs to the training loss only, as in the reference). After `replan_steps` steps
+    without progress its reach proposition is marked infeasible (every candidate reaching it) and
+    the next best is taken, unless the last transition was accepting (staying is then the goal;
+    the timer restarts). With no candidate left the agent gives the episode up (`aborted`, the
+    reference's `NoPathsException`: neither success nor violation). Actions are the policy's
     mode (`deterministic`, the reference's setting) or samples.
     """
     alphabet = jnp.asarray(alphabet, bool)
@@ -213,7 +217,7 @@ def make_policy(network: nn.Module, alphabet: jax.Array, deterministic: bool = T
         reach, avoid, valid = candidate_masks(task_state.spec, task_state.q, alphabet)
         images = jax.vmap(reduce_observation, in_axes=(None, 0, 0))(obs, reach, avoid)
         out = network.apply(params, images)
-        score = out.value - jnp.clip(out.multiplier, 0.01, 5.0) * out.cost_value
+        score = out.value - out.multiplier * out.cost_value
         allowed = valid & ~infeasible
         best = jnp.argmax(jnp.where(allowed, score, -jnp.inf))
         return PlanCarry(task_state.q, reach[best], avoid[best], best.astype(jnp.int32), infeasible,
@@ -224,16 +228,23 @@ def make_policy(network: nn.Module, alphabet: jax.Array, deterministic: bool = T
         return plan(params, obs, task_state, jnp.zeros(num, bool))
 
     def apply(params, obs, task_state, carry: PlanCarry, key):
-        moved = task_state.q != carry.q
-        timed_out = carry.steps >= replan_steps
+        spec, q = task_state.spec, task_state.q
+        moved = q != carry.q
+        timed_out = (carry.steps >= replan_steps) & ~moved
+        symbol = jnp.argmax(jnp.all(alphabet == task_state.propositions, axis=-1))
+        give_up = timed_out & ~spec.accepting[q, symbol]
         # A timeout gives up the reach proposition itself (every candidate that shares it), as
         # the reference marks the reach assignment infeasible at the current automaton state.
-        reach_all, _, _ = candidate_masks(task_state.spec, task_state.q, alphabet)
+        reach_all, _, _ = candidate_masks(spec, q, alphabet)
         same_reach = jnp.all(reach_all == carry.reach, axis=-1)
-        infeasible = jnp.where(moved, False, carry.infeasible) | (timed_out & ~moved & same_reach)
-        carry = jax.lax.cond(moved | timed_out, lambda: plan(params, obs, task_state, infeasible), lambda: carry)
+        infeasible = jnp.where(moved, False, carry.infeasible) | (give_up & same_reach)
+        carry = jax.lax.cond(
+            moved | give_up,
+            lambda: plan(params, obs, task_state, infeasible),
+            lambda: carry._replace(steps=jnp.where(timed_out, 0, carry.steps)),
+        )
         out = network.apply(params, reduce_observation(obs, carry.reach, carry.avoid))
         action = out.pi.mode() if deterministic else out.pi.sample(key)
         return action, carry._replace(steps=carry.steps + 1)
 
-    return StatefulPolicy(init, apply)
+    return StatefulPolicy(init, apply, aborted=lambda carry: carry.stuck)

@@ -6,7 +6,7 @@ original protocol (one seeded env reset per episode, the same for every formula)
 outcome does not depend on which other seeds, specs or episodes run beside it. Results are
 deterministic given the seeds. Each episode runs for
 exactly the horizon under a `lax.scan` and freezes once it ends (success, violation, the
-world's termination, or the horizon).
+world's termination, the horizon, or the policy giving it up).
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ class EvalResult:
             self,
             spec_names=tuple(self.spec_names[i] for i in indices),
             is_finite=self.is_finite[indices],
-            table=EpisodeTable(*(x[:, indices] for x in self.table)),
+            table=EpisodeTable(*(None if x is None else x[:, indices] for x in self.table)),
         )
 
     def summary(self, spec_groups: dict[str, list[int]] | None = None) -> dict[str, Any]:
@@ -106,7 +106,8 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
     """One episode of at most `horizon` steps (trace-time function; `vmap` it over lanes).
 
     Returns:
-        `(final TaskState, trace)`: `trace` is None, or when `record` a pair of the per-step
+        `(final TaskState, aborted bool[], trace)`: `aborted` when the policy gave the episode up
+        (see `StatefulPolicy.aborted`); `trace` is None, or when `record` a pair of the per-step
         TaskStates `[T]` (after each step) and `alive bool[T]` (the step was part of the episode).
     """
     key_reset, key_init, key_loop = jax.random.split(key, 3)
@@ -114,26 +115,29 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
     carry = policy.init(policy_params, obs, state, key_init)
 
     def body(loop, t):
-        obs, state, carry, done = loop
+        obs, state, carry, done, aborted = loop
         key_policy, key_step = jax.random.split(jax.random.fold_in(key_loop, t))
         output, carry_next = policy.apply(policy_params, obs, state, carry, key_policy)
+        gives_up = ~done & (False if policy.aborted is None else policy.aborted(carry_next))
         action, take_epsilon = split_action(output)
         obs_next, state_next, _, terminated, truncated, _ = task.step_task(
             key_step, state, action, params, take_epsilon
         )
-        # An ended episode stays frozen until the scan (the horizon) is over. The spec is left
-        # out of the select so that it stays unbatched over the episodes that share it.
+        # An ended episode stays frozen until the scan (the horizon) is over; a given-up one
+        # freezes before its step. The spec is left out of the select so that it stays unbatched
+        # over the episodes that share it.
         obs, frozen, carry = select_tree(
-            done, (obs, state.replace(spec=None), carry),
+            done | gives_up, (obs, state.replace(spec=None), carry),
             (obs_next, state_next.replace(spec=None), carry_next),
         )
         state = frozen.replace(spec=state.spec)
-        trace = (state, ~done) if record else None
-        return (obs, state, carry, done | terminated | truncated), trace
+        trace = (state, ~done & ~gives_up) if record else None
+        ended = done | gives_up | terminated | truncated
+        return (obs, state, carry, ended, aborted | gives_up), trace
 
-    init = (obs, state, carry, jnp.zeros((), bool))
-    (_, state, _, _), trace = jax.lax.scan(body, init, jnp.arange(horizon))
-    return state, trace
+    init = (obs, state, carry, jnp.zeros((), bool), jnp.zeros((), bool))
+    (_, state, _, _, aborted), trace = jax.lax.scan(body, init, jnp.arange(horizon))
+    return state, aborted, trace
 
 
 def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, params: Any,
@@ -150,8 +154,8 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
 
     def episode(policy_params, seed, spec_index, episode_index):
         key = jax.random.fold_in(jax.random.key(seed), episode_index)
-        state, _ = run_episode(policy, task, params, horizon, policy_params, key, spec_index)
-        return _outcome(state)
+        state, aborted, _ = run_episode(policy, task, params, horizon, policy_params, key, spec_index)
+        return _outcome(state, aborted)
 
     per_episode = jax.vmap(episode, in_axes=(None, None, None, 0))
     per_spec = jax.vmap(per_episode, in_axes=(None, None, 0, None))
@@ -166,8 +170,8 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
     return evaluator
 
 
-def _outcome(state: TaskState) -> EpisodeTable:
-    return EpisodeTable(state.success, state.violation, state.time, state.num_accepting)
+def _outcome(state: TaskState, aborted: jax.Array) -> EpisodeTable:
+    return EpisodeTable(state.success, state.violation, state.time, state.num_accepting, aborted)
 
 
 def evaluate(policy: Callable[..., Any] | StatefulPolicy, env_id_or_env: Any, specs: Any,
@@ -222,7 +226,7 @@ def record_episodes(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, 
     @jax.jit
     def run(keys, spec_index):
         def one(key, index):
-            _, (states, alive) = run_episode(
+            _, _, (states, alive) = run_episode(
                 policy, task, params, horizon, policy_params, key, index, True
             )
             _, first = task.reset(jax.random.split(key, 3)[0], params, index)

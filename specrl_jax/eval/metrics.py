@@ -1,14 +1,14 @@
 """The paper's evaluation metrics, computed on the host from an episode table.
 
 An episode table holds, for every (seed, spec, episode), whether the episode ended in success or
-violation, its length in steps (epsilon steps included) and its number of accepting transitions.
-From it, per seed and spec:
+violation, its length in steps (epsilon steps included), its number of accepting transitions and
+whether the policy gave it up (aborted). From it, per seed and spec:
 
 - `eta_s`: fraction of episodes that succeed; `eta_v`: fraction that violate;
-  `eta_o = 1 - eta_s - eta_v` (timeouts and the world's own terminations);
+  `eta_o = 1 - eta_s - eta_v` (timeouts, the world's own terminations, aborted episodes);
 - `mu`: mean steps to success, over successful episodes only (NaN if there is none);
-- `mu_acc`: mean accepting visits over non-violating episodes only (NaN if every episode
-  violates), the infinite-horizon metric (GenZ-LTL's protocol, see the reference notes).
+- `mu_acc`: mean accepting visits over non-violating, non-aborted episodes only (NaN if there is
+  none), the infinite-horizon metric (GenZ-LTL's protocol, see the reference notes).
 
 Suites aggregate per seed first (the mean over the suite's specs, NaN-skipping for `mu` and
 `mu_acc`), then report the mean and the standard deviation (ddof 0) over seeds. A NaN marks "no
@@ -34,6 +34,7 @@ class EpisodeTable(NamedTuple):
     violation: np.ndarray  # bool
     steps: np.ndarray  # int, episode length in steps (epsilon steps included)
     num_accepting: np.ndarray  # int, accepting transitions taken in the episode
+    aborted: np.ndarray | None = None  # bool, the policy gave the episode up (None: never)
 
 
 def _nanmean(x: np.ndarray, axis: int) -> np.ndarray:
@@ -68,6 +69,9 @@ def per_seed_metrics(table: EpisodeTable) -> dict[str, np.ndarray]:
     violation = np.asarray(table.violation, bool)
     if np.any(success & violation):
         raise ValueError("an episode cannot both succeed and violate; the episode table is corrupt")
+    aborted = np.zeros_like(success) if table.aborted is None else np.asarray(table.aborted, bool)
+    if np.any(aborted & (success | violation)):
+        raise ValueError("an aborted episode cannot succeed or violate; the episode table is corrupt")
     eta_s = success.mean(axis=-1)
     eta_v = violation.mean(axis=-1)
     return {
@@ -75,7 +79,7 @@ def per_seed_metrics(table: EpisodeTable) -> dict[str, np.ndarray]:
         "eta_v": eta_v,
         "eta_o": 1.0 - eta_s - eta_v,
         "mu": _masked_mean(np.asarray(table.steps), success),
-        "mu_acc": _masked_mean(np.asarray(table.num_accepting), ~violation),
+        "mu_acc": _masked_mean(np.asarray(table.num_accepting), ~violation & ~aborted),
     }
 
 

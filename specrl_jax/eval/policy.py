@@ -8,6 +8,11 @@ or a `StatefulPolicy` whose carry lives for one episode (a chosen subgoal, a rep
 
     carry = init(policy_params, obs, task_state, key)              # at every episode start
     action_or_pair, carry = apply(policy_params, obs, task_state, carry, key)
+    gave_up = aborted(carry)                                       # optional, bool[]
+
+A policy that can find no way forward (GenZ-LTL's `NoPathsException`) gives up through
+`aborted`, read on the carry `apply` returns: the episode ends there, before that step is taken,
+and counts as neither success nor violation (nor in `mu_acc`).
 
 `task_state` is a `specrl_jax.tasks.TaskState`: the automaton state `q`, the episode's spec
 tensors `spec` and `spec_index`, the step count `time`, `steps_in_q` and the world's state.
@@ -25,10 +30,12 @@ from specrl_jax.automata import epsilon_slot
 
 
 class StatefulPolicy(NamedTuple):
-    """A policy with per-episode memory (see the module docstring for the signatures)."""
+    """A policy with per-episode memory (see the module docstring for the signatures);
+    `aborted` (optional) says from the carry that the policy gave the episode up."""
 
     init: Callable[..., Any]
     apply: Callable[..., tuple[Any, Any]]
+    aborted: Callable[[Any], jax.Array] | None = None
 
 
 def as_stateful(policy: Callable[..., Any] | StatefulPolicy) -> StatefulPolicy:

@@ -9,6 +9,7 @@ from specrl_jax import automata
 from specrl_jax.baselines import deepltl, genz
 from specrl_jax.baselines.ppo import make_train
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
+from specrl_jax.eval import evaluate
 from specrl_jax.tasks import TaskEnv
 
 
@@ -46,22 +47,47 @@ def test_reduced_observation_marks_reach_avoid_and_agent():
     assert np.isclose(float(image[1, 1]), 0.2)
 
 
-def test_genz_timeout_gives_up_the_reach_proposition():
+def _genz_setup(formula, replan_steps):
     env, params = specrl_jax.make("LetterLTL0-v0")
-    spec = automata.compile_spec("F a & F b & F c", env.propositions, alphabet=env.alphabet)
+    spec = automata.compile_spec(formula, env.propositions, alphabet=env.alphabet)
     task = TaskEnv(env, automata.stack([spec]))
-    obs, task_state = task.reset(jax.random.key(0), params, spec_index=0)
     network = genz.GenZNetwork()
     net_params = network.init(jax.random.key(1), jnp.zeros((7, 7, 1)))
-    policy = genz.make_policy(network, env.alphabet, replan_steps=1)
-    carry = policy.init(net_params, obs, task_state, jax.random.key(2))
-    chosen = [np.asarray(carry.reach)]
-    for i in range(4):  # the automaton never moves: every second call times out and replans
-        _, carry = policy.apply(net_params, obs, task_state, carry, jax.random.key(3 + i))
-        chosen.append(np.asarray(carry.reach))
-    letters = [int(np.argmax(r)) for r in chosen]
-    assert all(r.sum() == 1 for r in chosen)
-    assert sorted(set(letters)) == [0, 1, 2], letters  # a, b, c each tried, none twice in a row
+    policy = genz.make_policy(network, env.alphabet, replan_steps=replan_steps)
+    return env, params, task, net_params, policy
+
+
+def test_genz_timeout_gives_up_the_reach_proposition_then_the_episode():
+    env, params, task, net_params, policy = _genz_setup("F a & F b & F c", replan_steps=1)
+    obs, task_state = task.reset(jax.random.key(0), params, spec_index=0)
+    carry = jax.jit(policy.init)(net_params, obs, task_state, jax.random.key(2))
+    apply = jax.jit(policy.apply)
+    chosen = []
+    for i in range(4):  # the automaton never moves: from the second call on, each times out
+        _, carry = apply(net_params, obs, task_state, carry, jax.random.key(3 + i))
+        chosen.append(int(np.argmax(carry.reach)))
+        assert bool(policy.aborted(carry)) == (i == 3)
+    assert sorted(chosen[:3]) == [0, 1, 2], chosen  # a, b, c each tried once, then nothing is left
+    # through the evaluator: an episode whose automaton never moves is given up before step 3,
+    # as neither success nor violation; one that moves clears its marks and goes on
+    t = evaluate(policy, (env, params), ["F a & F b & F c"], seeds=[1], episodes_per_seed=8,
+                 policy_params=net_params).table
+    assert t.aborted.any()
+    assert not (t.aborted & (t.success | t.violation)).any()
+    assert (t.steps[t.aborted] >= 3).all() and (t.steps[t.aborted] == 3).any()
+
+
+def test_genz_timeout_in_an_accepting_self_loop_marks_nothing():
+    env, params, task, net_params, policy = _genz_setup("G F a", replan_steps=1)
+    obs, task_state = task.reset(jax.random.key(0), params, spec_index=0)
+    carry = jax.jit(policy.init)(net_params, obs, task_state, jax.random.key(2))
+    apply = jax.jit(policy.apply)
+    on_a = task_state.replace(propositions=jnp.asarray(env.alphabet)[1 + 0])  # {a}: accepting loop
+    assert bool(task_state.spec.accepting[task_state.q, 1]) and np.asarray(on_a.propositions)[0]
+    for state, gives_up in ((on_a, False), (task_state, True)):
+        _, after = apply(net_params, obs, state, carry._replace(steps=jnp.int32(1)), jax.random.key(3))
+        assert bool(policy.aborted(after)) == gives_up  # 'a' is the only candidate
+        assert int(after.steps) == 1  # the timer restarted
 
 
 def test_sequence_encoder_reads_only_the_remaining_pairs():
@@ -100,3 +126,13 @@ def test_evaluate_runs_each_trained_seed_on_the_suite_protocol(monkeypatch):
     assert table.success.shape == (2, 2, 3) and suite.result.horizon == 75
     assert suite.result.seeds == (1, 2) and suite.method == "GenZ-LTL"
     assert np.all(table.steps <= 75) and not np.any(table.success & table.violation)
+
+
+def test_aborted_episodes_count_as_other_and_leave_mu_acc():
+    from specrl_jax.eval.metrics import EpisodeTable, per_seed_metrics
+
+    fields = ([0, 0, 0, 0], [0, 1, 0, 0], [75, 4, 3, 75], [6, 2, 1, 4], [0, 0, 1, 0])
+    m = per_seed_metrics(EpisodeTable(*(np.asarray(x, bool if i in (0, 1, 4) else int)[None, None]
+                                        for i, x in enumerate(fields))))
+    assert m["eta_v"][0, 0] == 0.25 and m["eta_o"][0, 0] == 0.75
+    assert m["mu_acc"][0, 0] == 5.0  # (6 + 4) / 2: the violating and the aborted episode are out
