@@ -49,19 +49,34 @@ def epsilon_slot(take_epsilon: jax.Array | bool | int) -> jax.Array:
     return take.astype(jnp.int32)
 
 
-def _column(alphabet: jax.Array, props: jax.Array, take_epsilon) -> jax.Array:
-    """int32[]: the `step_table` column of a step (symbol, unknown label, or epsilon slot)."""
+UNROLL_MAX_SYMBOLS = 64
+
+
+def _code(bits: jax.Array) -> jax.Array:
+    """int32[...]: bool[..., P] read as a binary number."""
+    weights = jnp.left_shift(1, jnp.arange(bits.shape[-1], dtype=jnp.int32))
+    return jnp.sum(jnp.where(bits.astype(bool), weights, 0), axis=-1)
+
+
+def _column(alphabet: jax.Array, symbol_of_code: jax.Array, num_slots: int, props: jax.Array,
+            take_epsilon) -> jax.Array:
+    """int32[]: the `step_table` column of a step (symbol, unknown label, or epsilon slot; a
+    slot past the last one is a slot the state lacks, so it stays)."""
     num_symbols, num_props = alphabet.shape
     slot = epsilon_slot(take_epsilon)
-    if num_props <= 30:
-        # compare one integer code per symbol instead of P booleans
-        weights = jnp.left_shift(1, jnp.arange(num_props, dtype=jnp.int32))
-        codes = jnp.sum(jnp.where(alphabet, weights, 0), axis=-1)
-        match = codes == jnp.sum(jnp.where(props.astype(bool), weights, 0))
+    if symbol_of_code.shape[-1] == 1 << num_props:
+        # a gather fuses with the env's own kernels; a search over the alphabet adds its own
+        symbol = symbol_of_code[_code(props)].astype(jnp.int32)
+    elif num_symbols <= UNROLL_MAX_SYMBOLS:
+        code, codes = _code(props), _code(alphabet)
+        symbol = jnp.int32(num_symbols)
+        for a in range(num_symbols):
+            symbol = jnp.where(code == codes[a], a, symbol)
     else:
         match = jnp.all(alphabet == props.astype(bool)[None, :], axis=-1)
-    symbol = jnp.where(match.any(), jnp.argmax(match), num_symbols)
-    return jnp.where(slot >= 0, num_symbols + 1 + slot, symbol).astype(jnp.int32)
+        symbol = jnp.where(match.any(), jnp.argmax(match), num_symbols)
+    eps_column = jnp.where(slot < num_slots, num_symbols + 1 + slot, num_symbols)
+    return jnp.where(slot >= 0, eps_column, symbol).astype(jnp.int32)
 
 
 def _unpack(word: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
@@ -86,8 +101,9 @@ def step(
          success bool[], violation bool[]) where success / violation are flags of q_next.
         A label outside the alphabet leaves q unchanged in this unchecked variant.
     """
-    column = _column(spec.alphabet, props, take_epsilon)
-    return _unpack(spec.step_table[q, jnp.minimum(column, spec.step_table.shape[-1] - 1)])
+    column = _column(spec.alphabet, spec.symbol_of_code, spec.epsilon.shape[-1], props,
+                     take_epsilon)
+    return _unpack(spec.step_table[q, column])
 
 
 def step_in_batch(
@@ -107,9 +123,9 @@ def step_in_batch(
         spec_id: int32[] which spec.
         q, props, take_epsilon: as in `step`.
     """
-    column = _column(specs.alphabet[0], props, take_epsilon)
-    table = specs.step_table
-    return _unpack(table[spec_id, q, jnp.minimum(column, table.shape[-1] - 1)])
+    column = _column(specs.alphabet[0], specs.symbol_of_code[0], specs.epsilon.shape[-1],
+                     props, take_epsilon)
+    return _unpack(specs.step_table[spec_id, q, column])
 
 
 def step_checked(

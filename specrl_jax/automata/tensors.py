@@ -40,6 +40,8 @@ class CompiledSpec:
         step_table: int32[S, A + 1 + E] every step outcome packed in one word (`pack_step_table`):
             column a < A reads symbol a, column A an unknown label (stay), column A + 1 + e
             epsilon slot e (stay where the slot is empty). Derived from the fields above.
+        symbol_of_code: int8/int16[2**P] the symbol of each label read as a binary number
+            (A where the label is not in the alphabet); empty if P > 12. Derived from `alphabet`.
     """
 
     delta: jnp.ndarray
@@ -61,6 +63,7 @@ class CompiledSpec:
     seq_length: jnp.ndarray
     seq_valid: jnp.ndarray
     step_table: jnp.ndarray
+    symbol_of_code: jnp.ndarray
 
     @property
     def num_states(self) -> int:
@@ -73,13 +76,25 @@ class CompiledSpec:
 
 
 FIELDS = tuple(CompiledSpec.__dataclass_fields__)
-_DERIVED = ("step_table",)
+_DERIVED = ("step_table", "symbol_of_code")
+MAX_CODE_TABLE_PROPS = 12
 _STORED = tuple(f for f in FIELDS if f not in _DERIVED)
 
 STATE_MASK = (1 << 28) - 1
 ACCEPTED_BIT = 1 << 28
 SUCCESS_BIT = 1 << 29
 VIOLATION_BIT = 1 << 30
+
+
+def symbol_of_code(alphabet: np.ndarray) -> np.ndarray:
+    """int8/int16[2**P]: code -> symbol, A for a label outside the alphabet ([0] if P > 12)."""
+    num_symbols, num_props = alphabet.shape
+    dtype = np.int8 if num_symbols < 128 else np.int16
+    if num_props > MAX_CODE_TABLE_PROPS:
+        return np.zeros((0,), dtype)
+    table = np.full(1 << num_props, num_symbols, dtype)
+    table[(alphabet.astype(np.int64) << np.arange(num_props)).sum(-1)] = np.arange(num_symbols)
+    return table
 
 
 def pack_step_table(arrays: dict[str, np.ndarray]) -> np.ndarray:
@@ -144,6 +159,7 @@ def compile_spec(
             cache.save(key, arrays)
     arrays = {name: np.asarray(arrays[name]) for name in _STORED}
     arrays["step_table"] = pack_step_table(arrays)
+    arrays["symbol_of_code"] = symbol_of_code(alphabet)
     # device_put is a plain copy; jnp.asarray would dispatch (and compile) one op per shape
     return CompiledSpec(**jax.device_put(arrays))
 
@@ -224,4 +240,5 @@ def stack(specs: Sequence[CompiledSpec]) -> CompiledSpec:
         out[name] = np.stack(padded)
     out["step_table"] = np.stack([
         pack_step_table({name: out[name][i] for name in _STORED}) for i in range(len(specs))])
+    out["symbol_of_code"] = np.stack([symbol_of_code(alphabet)] * len(specs))
     return CompiledSpec(**jax.device_put(out))

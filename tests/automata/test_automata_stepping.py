@@ -127,3 +127,38 @@ def test_epsilon_moves_consume_no_label():
     # epsilon requested where there is none: no move
     q3, acc, _, _ = step(spec, q1, a, jnp.int32(0))
     assert int(q3) == int(q1) and not bool(acc)
+
+
+@pytest.mark.parametrize("lookup", ["code_table", "unrolled", "reduction"])
+def test_step_table_agrees_with_the_automaton_tables(monkeypatch, lookup):
+    """Every (state, label or epsilon slot) read from the packed table gives the same next state
+    and flags as delta / accepting / epsilon / success / violation, on each label lookup."""
+    from specrl_jax.automata import stepping
+
+    spec = compile_spec("FG a | GF b & GF c", PROPS, zero_or_one(4))
+    if lookup != "code_table":  # the table is left out for P > 12
+        spec = spec.replace(symbol_of_code=spec.symbol_of_code[:0])
+    if lookup == "reduction":
+        monkeypatch.setattr(stepping, "UNROLL_MAX_SYMBOLS", 0)
+    delta, accepting = np.asarray(spec.delta), np.asarray(spec.accepting)
+    epsilon, success, violation = (np.asarray(spec.epsilon), np.asarray(spec.success),
+                                   np.asarray(spec.violation))
+    assert (epsilon >= 0).sum() >= 2
+    unknown = np.array([True, True, False, False])  # two propositions at once: not in the alphabet
+    labels = np.concatenate([np.asarray(spec.alphabet), unknown[None]])
+    num_states, num_slots = delta.shape[0], epsilon.shape[1]
+    qs, rows, slots = np.meshgrid(np.arange(num_states), np.arange(len(labels)),
+                                  np.arange(-1, num_slots + 1), indexing="ij")
+    qs, rows, slots = qs.ravel(), rows.ravel(), slots.ravel()
+    got = jax.jit(jax.vmap(step, (None, 0, 0, 0)))(spec, qs, labels[rows], slots)
+    got = [np.asarray(x) for x in got]
+    sym = np.minimum(rows, delta.shape[1] - 1)
+    known = rows < delta.shape[1]
+    eps_target = np.where(slots < num_slots, epsilon[qs, np.clip(slots, 0, num_slots - 1)], -1)
+    label_next = np.where(known, delta[qs, sym], qs)
+    want_q = np.where(slots >= 0, np.where(eps_target >= 0, eps_target, qs), label_next)
+    want_acc = (slots < 0) & known & accepting[qs, sym]
+    np.testing.assert_array_equal(got[0], want_q)
+    np.testing.assert_array_equal(got[1], want_acc)
+    np.testing.assert_array_equal(got[2], success[want_q])
+    np.testing.assert_array_equal(got[3], violation[want_q])

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from specrl_jax.automata.tensors import pack_step_table
+from specrl_jax.automata.tensors import pack_step_table, symbol_of_code
 from specrl_jax.envs.base import Env
 from specrl_jax.envs.spaces import Box, Dict, Discrete
 
@@ -106,6 +106,7 @@ class HandSpec:
     is_finite: jax.Array
     alphabet: jax.Array
     step_table: jax.Array
+    symbol_of_code: jax.Array
 
 
 NUM_STATES = 4
@@ -131,7 +132,8 @@ def hand_spec(delta, accepting_into=(), accepting_edges=(), epsilon=None, succes
               "success": mask(success), "violation": mask(violation)}
     return HandSpec(**{k: jnp.asarray(v) for k, v in arrays.items()},
                     init=jnp.asarray(0, jnp.int32), is_finite=jnp.asarray(finite),
-                    alphabet=jnp.asarray(ALPHABET), step_table=jnp.asarray(pack_step_table(arrays)))
+                    alphabet=jnp.asarray(ALPHABET), step_table=jnp.asarray(pack_step_table(arrays)),
+                    symbol_of_code=jnp.asarray(symbol_of_code(ALPHABET)))
 
 
 def reach_avoid_spec() -> HandSpec:
