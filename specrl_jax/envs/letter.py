@@ -195,8 +195,12 @@ class LetterWorld(Env):
     ) -> tuple[Obs, LetterState, jax.Array, jax.Array, Info]:
         agent = (state.agent + jnp.asarray(MOVES)[action]) % self.config.grid_size
         state = state.replace(agent=agent, time=state.time + 1)
-        info = {"propositions": self.label(state)}
-        return self.observe(state), state, jnp.zeros((), jnp.float32), jnp.asarray(False), info
+        obs = self.observe(state)
+        # the view is centred on the agent, so its centre cell is `label(state)` without a
+        # second read of the map
+        centre = self.config.view // 2
+        info = {"propositions": obs["ap"][centre, centre].astype(bool)}
+        return obs, state, jnp.zeros((), jnp.float32), jnp.asarray(False), info
 
     def observe(self, state: LetterState) -> Obs:
         """The agent-centred view: `ap` uint8[V, V, L], `ego` uint8[V, V, 1]."""
