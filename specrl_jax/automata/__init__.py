@@ -9,16 +9,18 @@ from specrl_jax.automata.stepping import (
     step_in_batch,
     symbol_index,
 )
-from specrl_jax.automata.tensors import CompiledSpec, compile_spec, stack
+from specrl_jax.automata.tensors import CompiledSpec, Pairs, compile_spec, pairs, stack
 from specrl_jax.automata.translate import all_subsets, product, zero_or_one
 
 __all__ = [
     "CompiledSpec",
+    "Pairs",
     "all_subsets",
     "check_labels",
     "compile_spec",
     "epsilon_slot",
     "has_epsilon",
+    "pairs",
     "product",
     "stack",
     "step",

@@ -19,10 +19,12 @@ from typing import NamedTuple
 
 import numpy as np
 
+from specrl_jax.automata import graph
 from specrl_jax.automata.translate import Automaton
 
 NUM_LOOPS_INFINITE = 2
-SEARCH_BUDGET = 2_000  # depth-first calls per start state
+MAX_PAIRS = 2**15 - 1
+SEARCH_BUDGET = 20_000  # memoised search calls per automaton (paper specs need at most 8,003)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,14 +39,19 @@ class Subgoals:
 
 @dataclasses.dataclass(frozen=True)
 class Sequences:
-    """Candidate sequences: reach/avoid bool[S, C, L, A], epsilon bool[S, C, L],
-    epsilon_slot int32[S, C, L] (which epsilon edge, -1 if not an epsilon step),
-    length int32[S, C], valid bool[S, C]."""
+    """Candidate sequences as ids into a table of their distinct reach-avoid pairs.
 
-    reach: np.ndarray
-    avoid: np.ndarray
-    epsilon: np.ndarray
-    epsilon_slot: np.ndarray
+    Attributes:
+        pair: int16[S, C, L] pair of each step (0, the padding pair, past the end).
+        pair_reach, pair_avoid: bool[U, A] symbols to reach / avoid (reach empty for epsilon).
+        pair_epsilon_slot: int32[U] epsilon edge to take, -1 if not an epsilon step.
+        length: int32[S, C] steps of each sequence; valid: bool[S, C].
+    """
+
+    pair: np.ndarray
+    pair_reach: np.ndarray
+    pair_avoid: np.ndarray
+    pair_epsilon_slot: np.ndarray
     length: np.ndarray
     valid: np.ndarray
 
@@ -73,22 +80,26 @@ def one_step_subgoals(aut: Automaton) -> Subgoals:
     return Subgoals(reach=reach, avoid=avoid, target=target, valid=target >= 0)
 
 
-class _Transition:
+class _Transition(NamedTuple):
     """A group of symbols from one state to one target with one acceptance flag, or an epsilon
-    edge. Compared by identity: one object per (source, target, accepting, slot)."""
+    edge (slot >= 0, no symbols)."""
 
-    __slots__ = ("accepting", "dead", "slot", "source", "symbols", "target")
-
-    def __init__(self, source, target, accepting, slot, symbols, dead):
-        self.source, self.target, self.accepting = source, target, accepting
-        self.slot = slot  # epsilon slot, -1 for a labelled transition
-        self.symbols = symbols  # frozenset of alphabet rows taking it (empty for epsilon)
-        self.dead = dead  # the target has an empty language
+    source: int
+    target: int
+    accepting: bool
+    slot: int  # epsilon slot, -1 for a labelled transition
+    symbols: int  # bit mask of the alphabet rows taking it (0 for epsilon)
+    dead: bool  # the target has an empty language
 
 
 class _Path(NamedTuple):
-    steps: tuple  # ((transition, avoid: set of transitions), ...)
-    loop_index: int
+    reach: tuple  # reach symbol mask of each step (what the containment pruning compares)
+    steps: tuple  # ((transition, avoid symbol mask), ...)
+    loop_state: int  # the state the accepting cycle returns to (a source of one of the steps)
+
+
+def _mask(symbols) -> int:
+    return sum(1 << int(a) for a in symbols)
 
 
 def _transitions(aut: Automaton, q: int) -> list[_Transition]:
@@ -97,145 +108,220 @@ def _transitions(aut: Automaton, q: int) -> list[_Transition]:
         for acc in (False, True):
             syms = np.nonzero((aut.delta[q] == t) & (aut.accepting[q] == acc))[0]
             if len(syms):
-                out.append(_Transition(q, t, acc, -1, frozenset(syms.tolist()), dead[t]))
+                out.append(_Transition(q, t, acc, -1, _mask(syms), dead[t]))
     for slot, t in enumerate(aut.epsilon[q].tolist()):
         if t >= 0:
-            out.append(_Transition(q, t, False, slot, frozenset(), dead[t]))
+            out.append(_Transition(q, t, False, slot, 0, dead[t]))
     return out
 
 
-def _contained(longer: _Path, shorter: _Path) -> bool:
-    """The shorter path's reach sets embed, in order, as supersets of steps of the longer one."""
+def _contained(longer: tuple, shorter: tuple) -> bool:
+    """The shorter path's reach sets embed, in order, as supersets of steps of the longer one
+    (the reference's `check_path_contained`; greedy matching finds an embedding if any)."""
     pos = 0
-    for step, _ in longer.steps:
-        if step.symbols <= shorter.steps[pos][0].symbols:
+    for reach in longer:
+        if not reach & ~shorter[pos]:
             pos += 1
-            if pos == len(shorter.steps):
+            if pos == len(shorter):
                 return True
     return False
 
 
 def _prune(paths: list[_Path]) -> list[_Path]:
+    """Drop every path into which a strictly shorter one embeds (`_contained`).
+
+    This is the reference's pairwise pruning. Embedding is transitive, so the paths it keeps
+    are exactly those that no strictly shorter path embeds into, and checking against the
+    shorter paths kept is enough. The order of the kept paths is the input order.
+    """
     if len(paths) < 2:
         return paths
-    removed: set[int] = set()
-    for i in range(len(paths)):
-        for j in range(i + 1, len(paths)):
-            if i in removed or j in removed:
-                continue
-            li, lj = len(paths[i].steps), len(paths[j].steps)
-            if li < lj and _contained(paths[j], paths[i]):
-                removed.add(j)
-            elif li > lj and _contained(paths[i], paths[j]):
-                removed.add(i)
-            if i in removed:
-                break
-    return [p for k, p in enumerate(paths) if k not in removed]
+    keep = [False] * len(paths)
+    shorter: list[tuple] = []  # distinct reach tuples kept, all shorter than the current length
+    same: dict[tuple, None] = {}  # kept at the current length
+    length = 0
+    for i in sorted(range(len(paths)), key=lambda k: len(paths[k].reach)):
+        reach = paths[i].reach
+        if len(reach) != length:
+            shorter += same
+            same, length = {}, len(reach)
+        if not any(_contained(reach, o) for o in shorter):
+            keep[i] = True
+            same[reach] = None
+    return [p for p, k in zip(paths, keep) if k]
+
+
+def _bits(mask: int):
+    while mask:
+        low = mask & -mask
+        yield low.bit_length() - 1
+        mask ^= low
+
+
+class _OverBudget(Exception):
+    """The search needed more than its budget of memoised calls."""
+
+
+def _shortest_only(aut: Automaton, out: list[list[_Transition]]) -> list[list[_Transition]]:
+    """Keep the transitions on shortest paths to an accepting transition (and those into dead
+    states, which become avoid sets); states with an accepting transition keep only those."""
+    goal = aut.accepting.any(axis=1)
+    adj = graph.adjacency(aut.delta, aut.epsilon) & ~aut.violation[None, :]
+    dist = np.where(goal, 0, np.iinfo(np.int32).max)
+    frontier = goal
+    for k in range(1, aut.num_states + 1):
+        frontier = adj[:, frontier].any(axis=1) & (dist > k)
+        if not frontier.any():
+            break
+        dist[frontier] = k
+    return [[t for t in ts if t.dead or (t.accepting if goal[q] else dist[t.target] == dist[q] - 1)]
+            for q, ts in enumerate(out)]
 
 
 class _Search:
-    """The reference depth-first search over one automaton (no critic: obs is None)."""
+    """The reference's depth-first search (no critic: obs is None), complete and memoised.
 
-    def __init__(self, aut: Automaton, max_depth: int, budget: int):
-        self.aut = aut
+    The reference explores every simple path. What its call at state q returns depends on the
+    path above q only through the states of q's SCC that the search from q can run into (a
+    cycle closes only inside an SCC) and, among those, the ones at or before the latest
+    accepting transition (a closed cycle is accepting iff it contains that transition). So
+    calls agreeing on (q, those states, those before the accepting transition) return the same
+    paths: each is computed once and shared by every start state. Sets are bit masks.
+
+    The number of distinct calls can still grow exponentially with the size of an SCC (long
+    reach-avoid chains); past `budget` calls `_OverBudget` is raised. With `shortest`, the
+    search runs over `_shortest_only`'s transitions, where every cycle is accepting.
+    """
+
+    def __init__(self, aut: Automaton, budget: int = SEARCH_BUDGET, shortest: bool = False):
         self.out = [_transitions(aut, q) for q in range(aut.num_states)]
-        self.max_depth = max_depth
+        if shortest:
+            self.out = _shortest_only(aut, self.out)
+        adj = np.zeros((aut.num_states,) * 2, dtype=bool)
+        for q, out in enumerate(self.out):
+            adj[q, [t.target for t in out]] = True
+        reach = graph.reachability(adj)
+        self.scc = [_mask(np.nonzero(row)[0]) for row in reach & reach.T]
+        self.succ = [_mask({t.target for t in out if not t.dead}) & self.scc[q]
+                     for q, out in enumerate(self.out)]
+        self.memo: dict[tuple, tuple[_Path, ...]] = {}
         self.budget = budget
-        self.calls = 0
-        self.cut = False  # a branch was left unexplored (depth or budget)
 
-    def dfs(self, q: int, path: list, index: dict, acc_t: _Transition | None) -> list[_Path]:
-        self.calls += 1
-        index[q] = len(path)
-        neg, paths = set(), []
+    def paths(self, q: int) -> tuple[_Path, ...]:
+        """All pruned paths from q into an accepting cycle, avoid sets attached."""
+        return self._dfs(q, 0, 0)
+
+    def _touched(self, q: int, above: int) -> int:
+        """The states of `above` that the search from q can run into: successors of the states
+        q reaches inside its SCC without entering `above`."""
+        free = self.scc[q] & ~above
+        seen = frontier = 1 << q
+        touched = 0
+        while frontier:
+            nxt = 0
+            for s in _bits(frontier):
+                nxt |= self.succ[s]
+            touched |= nxt
+            frontier = nxt & free & ~seen
+            seen |= frontier
+        return touched & above
+
+    def _dfs(self, q: int, above: int, before_acc: int) -> tuple[_Path, ...]:
+        """Paths from q, given the states of q's SCC above it on the path (`above`) and those
+        of them at or before the latest accepting transition (`before_acc`)."""
+        if above:
+            above = self._touched(q, above)
+            before_acc &= above
+        key = (q, above, before_acc)
+        if key in self.memo:
+            return self.memo[key]
+        if len(self.memo) >= self.budget:
+            raise _OverBudget
+        on_path = above | 1 << q
+        neg, paths = 0, []
         for t in self.out[q]:
             if t.dead:
-                neg.add(t)
+                neg |= t.symbols
                 continue
-            path.append(t)
-            # accepting flags only sit on SCC-internal transitions (translate._finalize)
-            tracked = t if t.accepting else acc_t
-            if t.target in index:
-                if tracked in path[index[t.target]:]:
-                    futures = [_Path((), index[t.target])]
-                else:
-                    path.pop()
-                    if t.source != t.target:
-                        neg.add(t)
-                    continue
-            elif len(path) >= self.max_depth or self.calls >= self.budget:
-                # longer paths could only give sequences over max_length; not an avoid reason
-                self.cut = True
-                path.pop()
+            bit = 1 << t.target
+            if bit & on_path:
+                # accepting flags only sit on SCC-internal transitions (translate._finalize)
+                if t.accepting or bit & before_acc:
+                    paths.append(_Path((t.symbols,), ((t, 0),), t.target))
+                elif t.source != t.target:
+                    neg |= t.symbols
                 continue
-            else:
-                futures = self.dfs(t.target, path, index, tracked)
-                if not futures:
-                    neg.add(t)
-            paths += [_Path(((t, set()),) + f.steps, f.loop_index) for f in futures]
-            path.pop()
-        del index[q]
-        paths = _prune(paths)
-        for p in paths:
-            p.steps[0][1].update(neg)
-        return paths
+            scc = self.scc[t.target]
+            futures = self._dfs(t.target, on_path & scc,
+                                (on_path if t.accepting else before_acc) & scc)
+            if not futures:
+                neg |= t.symbols
+            paths += [_Path((t.symbols,) + f.reach, ((t, 0),) + f.steps, f.loop_state)
+                      for f in futures]
+        result = tuple(_Path(p.reach, ((p.steps[0][0], neg),) + p.steps[1:], p.loop_state)
+                       for p in _prune(paths))
+        self.memo[key] = result
+        return result
 
 
-def _search_within_budget(aut: Automaton, q: int, max_length: int) -> tuple[list[_Path], bool]:
-    """Paths from q up to max_length transitions. If that search exceeds the budget, the search
-    is repeated with half the depth cap; if that one fits, every path up to that length is
-    listed, otherwise the paths the first search found before the budget ran out."""
-    search = _Search(aut, max_length, SEARCH_BUDGET)
-    paths = search.dfs(q, [], {}, None)
-    if search.calls < SEARCH_BUDGET:
-        return paths, True
-    shallow = _Search(aut, max_length // 2, SEARCH_BUDGET)
-    found = shallow.dfs(q, [], {}, None)
-    return (found if shallow.calls < SEARCH_BUDGET else paths), False
-
-
-def _to_sequence(path: _Path, num_loops: int) -> list[tuple[_Transition, frozenset]]:
-    steps = [(t, frozenset().union(*(a.symbols for a in avoid))) for t, avoid in path.steps]
-    return steps[: path.loop_index] + steps[path.loop_index :] * num_loops
+def _to_sequence(path: _Path, num_loops: int) -> list[tuple[_Transition, int]]:
+    loop_index = next(i for i, (t, _) in enumerate(path.steps) if t.source == path.loop_state)
+    return list(path.steps[:loop_index] + path.steps[loop_index:] * num_loops)
 
 
 def candidate_sequences(aut: Automaton, max_sequences: int, max_length: int) -> Sequences:
     """DeepLTL's candidate reach-avoid sequences from every live state, as padded arrays.
 
-    Sequences longer than `max_length` are dropped and, past `max_sequences` per state, only
-    the shortest are kept (stable order); both are reported with a warning.
+    The search is complete unless it needs over `SEARCH_BUDGET` calls; then (with a warning)
+    it is repeated over the shortest paths to acceptance only. Sequences longer than
+    `max_length` are dropped and, past `max_sequences` per state, only the shortest are kept
+    (stable order); both are reported with a warning.
     """
     num_loops = 0 if aut.is_finite else NUM_LOOPS_INFINITE
-    per_state, dropped, cut = [], 0, 0
+    starts = [q for q in range(aut.num_states)
+              if not (aut.violation[q] or (aut.is_finite and aut.success[q]))]
+    try:
+        search = _Search(aut)
+        found = {q: search.paths(q) for q in starts}
+    except _OverBudget:
+        warnings.warn(f"the complete candidate search needs over {SEARCH_BUDGET} calls; "
+                      "candidates are the shortest paths instead (see docs/automata.md)",
+                      stacklevel=3)
+        search = _Search(aut, shortest=True)
+        found = {q: search.paths(q) for q in starts}
+    per_state, dropped = [], 0
     for q in range(aut.num_states):
-        if aut.violation[q] or (aut.is_finite and aut.success[q]):
+        if q not in found:
             per_state.append([])
             continue
-        paths, complete = _search_within_budget(aut, q, max_length)
-        seqs = [_to_sequence(p, num_loops) for p in paths]
-        cut += not complete
+        seqs = [_to_sequence(p, num_loops) for p in found[q]]
         kept = sorted((s for s in seqs if 0 < len(s) <= max_length), key=len)[:max_sequences]
         dropped += len(seqs) - len(kept)
         per_state.append(kept)
-    if cut:
-        warnings.warn(f"candidate search over {SEARCH_BUDGET} steps at {cut} states; their "
-                      "candidate lists are incomplete (see docs/automata.md)", stacklevel=3)
     if dropped:
         warnings.warn(f"{dropped} candidate sequences dropped (over max_length={max_length} "
                       f"or max_sequences={max_sequences} per state)", stacklevel=3)
+    # row 0 of the pair table is the padding pair: no reach, no avoid, no epsilon
+    pairs: dict[tuple, int] = {(0, 0, -1): 0}
     num_seq = max(1, max(len(s) for s in per_state))
     length = max(1, max((len(x) for s in per_state for x in s), default=1))
-    shape = (aut.num_states, num_seq, length)
-    reach = np.zeros(shape + (aut.delta.shape[1],), dtype=bool)
-    avoid = np.zeros_like(reach)
-    slot = np.full(shape, -1, dtype=np.int32)
-    lengths = np.zeros(shape[:2], dtype=np.int32)
+    ids = np.zeros((aut.num_states, num_seq, length), dtype=np.int64)
+    lengths = np.zeros((aut.num_states, num_seq), dtype=np.int32)
     for q, seqs in enumerate(per_state):
         for c, seq in enumerate(seqs):
             lengths[q, c] = len(seq)
-            for i, (t, avoid_syms) in enumerate(seq):
-                reach[q, c, i, sorted(t.symbols)] = True
-                avoid[q, c, i, sorted(avoid_syms)] = True
-                slot[q, c, i] = t.slot
-    return Sequences(reach=reach, avoid=avoid, epsilon=slot >= 0, epsilon_slot=slot,
-                     length=lengths, valid=lengths > 0)
+            for i, (t, avoid_mask) in enumerate(seq):
+                ids[q, c, i] = pairs.setdefault((t.symbols, avoid_mask, t.slot), len(pairs))
+    if len(pairs) > MAX_PAIRS:
+        raise ValueError(f"{len(pairs)} distinct reach-avoid pairs; at most {MAX_PAIRS} fit the "
+                         "int16 pair ids")
+    reach = np.zeros((len(pairs), aut.delta.shape[1]), dtype=bool)
+    avoid = np.zeros_like(reach)
+    slot = np.full(len(pairs), -1, dtype=np.int32)
+    symbols = np.arange(aut.delta.shape[1])
+    for (reach_mask, avoid_mask, eps_slot), u in pairs.items():
+        reach[u] = [reach_mask >> int(a) & 1 for a in symbols]
+        avoid[u] = [avoid_mask >> int(a) & 1 for a in symbols]
+        slot[u] = eps_slot
+    return Sequences(pair=ids.astype(np.int16), pair_reach=reach, pair_avoid=avoid,
+                     pair_epsilon_slot=slot, length=lengths, valid=lengths > 0)

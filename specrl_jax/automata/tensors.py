@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -11,7 +12,7 @@ from flax import struct
 
 from specrl_jax.automata import cache, subgoals, translate
 
-DEFAULT_MAX_SEQUENCES = 32
+DEFAULT_MAX_SEQUENCES = 64
 DEFAULT_MAX_LENGTH = 24
 MAX_DEFAULT_ALPHABET_PROPS = 10
 
@@ -21,7 +22,8 @@ class CompiledSpec:
     """One LTL spec over an alphabet of A assignments of P propositions (arrays only).
 
     Axes: S automaton states, A alphabet symbols, E epsilon slots, G one-step subgoals,
-    C candidate sequences, L sequence steps. Stacked specs carry a leading batch axis.
+    C candidate sequences, L sequence steps, U distinct reach-avoid pairs of the sequences.
+    Stacked specs carry a leading batch axis.
 
     Attributes:
         delta: int32[S, A] next state per alphabet symbol.
@@ -34,9 +36,11 @@ class CompiledSpec:
         alphabet: bool[A, P] the assignment of each symbol.
         subgoal_reach, subgoal_avoid: bool[S, G, A]; subgoal_target: int32[S, G] (-1 unused);
         subgoal_valid: bool[S, G]: one-step reach-avoid subgoals.
-        seq_reach, seq_avoid: bool[S, C, L, A]; seq_epsilon: bool[S, C, L];
-        seq_epsilon_slot: int32[S, C, L] (epsilon edge to take, -1 if not an epsilon step);
-        seq_length: int32[S, C]; seq_valid: bool[S, C]: DeepLTL's candidate sequences.
+        seq_pair: int16[S, C, L] each step's pair (row of the pair table; 0, the empty
+            padding pair, past the end); seq_length: int32[S, C]; seq_valid: bool[S, C]:
+            DeepLTL's candidate sequences. `pairs(spec, spec.seq_pair[q, c])` gives the masks.
+        pair_reach, pair_avoid: bool[U, A] symbols to reach / avoid (reach empty for epsilon);
+        pair_epsilon_slot: int32[U] epsilon edge to take, -1 if not an epsilon step.
         step_table: int32[S, A + 1 + E] every step outcome packed in one word (`pack_step_table`):
             column a < A reads symbol a, column A an unknown label (stay), column A + 1 + e
             epsilon slot e (stay where the slot is empty). Derived from the fields above.
@@ -56,12 +60,12 @@ class CompiledSpec:
     subgoal_avoid: jnp.ndarray
     subgoal_target: jnp.ndarray
     subgoal_valid: jnp.ndarray
-    seq_reach: jnp.ndarray
-    seq_avoid: jnp.ndarray
-    seq_epsilon: jnp.ndarray
-    seq_epsilon_slot: jnp.ndarray
+    seq_pair: jnp.ndarray
     seq_length: jnp.ndarray
     seq_valid: jnp.ndarray
+    pair_reach: jnp.ndarray
+    pair_avoid: jnp.ndarray
+    pair_epsilon_slot: jnp.ndarray
     step_table: jnp.ndarray
     symbol_of_code: jnp.ndarray
 
@@ -113,6 +117,23 @@ def pack_step_table(arrays: dict[str, np.ndarray]) -> np.ndarray:
     packed = (nxt | accepted * ACCEPTED_BIT | arrays["success"][nxt] * SUCCESS_BIT
               | arrays["violation"][nxt] * VIOLATION_BIT)
     return packed.astype(np.int32)
+
+
+class Pairs(NamedTuple):
+    """Reach-avoid pairs gathered from the pair table (`pairs`), `...` = the shape of the ids."""
+
+    reach: jnp.ndarray  # bool[..., A]
+    avoid: jnp.ndarray  # bool[..., A]
+    epsilon: jnp.ndarray  # bool[...], an epsilon step
+    epsilon_slot: jnp.ndarray  # int32[...], the epsilon edge to take, -1 if none
+
+
+def pairs(spec: CompiledSpec, ids: jnp.ndarray) -> Pairs:
+    """The masks of pair ids of one (unstacked) spec, e.g. `pairs(spec, spec.seq_pair[q, c])`
+    for candidate c in state q: reach/avoid bool[L, A], epsilon bool[L], epsilon_slot int32[L].
+    Works inside `jit`/`vmap` (three gathers)."""
+    slot = spec.pair_epsilon_slot[ids]
+    return Pairs(spec.pair_reach[ids], spec.pair_avoid[ids], slot >= 0, slot)
 
 
 def compile_spec(
@@ -181,12 +202,12 @@ def _build(formula, propositions, alphabet, max_sequences, max_length) -> dict[s
         "subgoal_avoid": goals.avoid,
         "subgoal_target": goals.target,
         "subgoal_valid": goals.valid,
-        "seq_reach": seqs.reach,
-        "seq_avoid": seqs.avoid,
-        "seq_epsilon": seqs.epsilon,
-        "seq_epsilon_slot": seqs.epsilon_slot,
+        "seq_pair": seqs.pair,
         "seq_length": seqs.length,
         "seq_valid": seqs.valid,
+        "pair_reach": seqs.pair_reach,
+        "pair_avoid": seqs.pair_avoid,
+        "pair_epsilon_slot": seqs.pair_epsilon_slot,
     }
 
 
@@ -197,18 +218,19 @@ _PAD = {
     "is_finite": ("", False), "alphabet": ("", False),
     "subgoal_reach": ("SG", False), "subgoal_avoid": ("SG", False),
     "subgoal_target": ("SG", -1), "subgoal_valid": ("SG", False),
-    "seq_reach": ("SCL", False), "seq_avoid": ("SCL", False), "seq_epsilon": ("SCL", False),
-    "seq_epsilon_slot": ("SCL", -1), "seq_length": ("SC", 0), "seq_valid": ("SC", False),
+    "seq_pair": ("SCL", 0), "seq_length": ("SC", 0), "seq_valid": ("SC", False),
+    "pair_reach": ("U", False), "pair_avoid": ("U", False), "pair_epsilon_slot": ("U", -1),
 }
 _AXIS = {"S": ("delta", 0), "E": ("epsilon", 1), "G": ("subgoal_target", 1),
-         "C": ("seq_length", 1), "L": ("seq_epsilon", 2)}
+         "C": ("seq_length", 1), "L": ("seq_pair", 2), "U": ("pair_epsilon_slot", 0)}
 
 
 def stack(specs: Sequence[CompiledSpec]) -> CompiledSpec:
-    """Pad specs to common S, E, G, C, L and stack them along a new leading axis.
+    """Pad specs to common S, E, G, C, L, U and stack them along a new leading axis.
 
     Padded states are non-accepting self-loops with every flag False; padded epsilon slots are
-    -1, padded subgoals and sequences are invalid. All specs must share one alphabet.
+    -1, padded subgoals and sequences are invalid, padded sequence steps name pair 0 (the
+    empty pair) and padded pairs are empty. All specs must share one alphabet.
     """
     specs = list(specs)
     if not specs:

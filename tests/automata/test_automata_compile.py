@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from specrl_jax.automata import all_subsets, cache, compile_spec, translate, zero_or_one
+from specrl_jax.automata.tensors import DEFAULT_MAX_LENGTH, DEFAULT_MAX_SEQUENCES
 
 PROPS = ("a", "b", "c", "d")
 
@@ -44,7 +45,7 @@ def test_owl_implication_syntax_is_accepted():
 
 def test_letter_tables_are_over_the_declared_alphabet():
     spec = compile_spec("!(a | b) U (c & F d)", tuple("abcdefghijkl"), zero_or_one(12))
-    assert spec.delta.shape[1] == 13 and spec.seq_reach.shape[-1] == 13
+    assert spec.delta.shape[1] == 13 and spec.pair_reach.shape[-1] == 13
     assert spec.delta.dtype == np.int32 and spec.accepting.dtype == bool
     assert bool(spec.is_finite) and int(spec.init) == 0
     # one dead sink and one success sink, both absorbing
@@ -71,7 +72,8 @@ def test_second_compile_reads_the_disk_cache(monkeypatch, tmp_path):
 
 def test_unreadable_cache_entry_is_rebuilt(monkeypatch, tmp_path):
     monkeypatch.setenv("SPECRL_JAX_CACHE_DIR", str(tmp_path))
-    key = cache.cache_key("F a", PROPS, zero_or_one(4), max_sequences=32, max_length=24)
+    key = cache.cache_key("F a", PROPS, zero_or_one(4), max_sequences=DEFAULT_MAX_SEQUENCES,
+                          max_length=DEFAULT_MAX_LENGTH)
     (tmp_path / "automata").mkdir()
     (tmp_path / "automata" / f"{key}.npz").write_bytes(b"not a zip file")
     spec = compile_spec("F a", PROPS, zero_or_one(4))
