@@ -125,8 +125,8 @@ def main() -> None:
     record = {
         "env": ENV_ID, "specs": count, "failed_to_compile": failed, "seeds": args.seeds, "episodes_per_seed": args.episodes,
         "horizon": int(params.max_steps), "padded_shapes": {
-            "S": int(stacked.delta.shape[1]), "C": int(stacked.seq_reach.shape[2]),
-            "L": int(stacked.seq_reach.shape[3])},
+            "S": int(stacked.delta.shape[1]), "C": int(stacked.seq_pair.shape[2]),
+            "L": int(stacked.seq_pair.shape[3])},
         "versions": versions(), "results": [],
     }
     for name in args.policies.split(","):

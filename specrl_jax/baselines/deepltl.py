@@ -18,6 +18,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from specrl_jax.automata import pairs
 from specrl_jax.baselines.ppo.networks import MLP, DiscreteHead, LetterCNN, PolicyOutput, critic
 from specrl_jax.baselines.ppo.rollout import StepResult
 from specrl_jax.baselines.ppo.train import PPOConfig
@@ -249,9 +250,10 @@ def make_policy(network: nn.Module, alphabet: jax.Array, num_actions: int = 4,
         symbol = jnp.argmax(jnp.all(alphabet == task_state.propositions, axis=-1))
         length = spec.seq_length[q, c]
         nxt = jnp.minimum(1, length - 1)
-        allowed = spec.seq_epsilon[q, c, 0] & ((nxt == 0) | ~spec.seq_avoid[q, c, nxt, symbol])
-        return SequenceObs(letter_image(obs), spec.seq_reach[q, c], spec.seq_avoid[q, c],
-                           spec.seq_epsilon[q, c], jnp.int32(0), length, allowed)
+        seq = pairs(spec, spec.seq_pair[q, c])
+        allowed = seq.epsilon[0] & ((nxt == 0) | ~seq.avoid[nxt, symbol])
+        return SequenceObs(letter_image(obs), seq.reach, seq.avoid, seq.epsilon, jnp.int32(0),
+                           length, allowed)
 
     def plan(params, obs, task_state):
         num = task_state.spec.seq_valid.shape[1]
@@ -268,7 +270,8 @@ def make_policy(network: nn.Module, alphabet: jax.Array, num_actions: int = 4,
         pi = network.apply(params, seq_obs(obs, task_state, carry.candidate)).pi
         action = pi.mode() if deterministic else pi.sample(key)
         take_epsilon = action == num_actions
-        slot = task_state.spec.seq_epsilon_slot[task_state.q, carry.candidate, 0]
+        spec = task_state.spec
+        slot = spec.pair_epsilon_slot[spec.seq_pair[task_state.q, carry.candidate, 0]]
         return (jnp.where(take_epsilon, 0, action), jnp.where(take_epsilon, slot, -1)), carry
 
     return StatefulPolicy(init, apply)

@@ -20,6 +20,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from specrl_jax.automata import pairs
 from specrl_jax.baselines.ppo.networks import MLP, DiscreteHead, LetterCNN, PolicyOutput, critic
 from specrl_jax.baselines.ppo.rollout import StepResult
 from specrl_jax.baselines.ppo.train import PPOConfig
@@ -185,9 +186,9 @@ def candidate_masks(spec: Any, q: jax.Array, alphabet: jax.Array) -> tuple[jax.A
     """
     num_props = alphabet.shape[1]
     single = alphabet.sum(-1) == 1  # [A]
-    first = spec.seq_epsilon[q, :, 0].astype(jnp.int32)  # [C], index of the first non-epsilon pair
-    reach_sym = jnp.take_along_axis(spec.seq_reach[q], first[:, None, None], axis=1)[:, 0] & single
-    avoid_sym = jnp.take_along_axis(spec.seq_avoid[q], first[:, None, None], axis=1)[:, 0] & single
+    first = pairs(spec, spec.seq_pair[q, :, 0]).epsilon.astype(jnp.int32)  # [C], first non-epsilon pair
+    pair = pairs(spec, jnp.take_along_axis(spec.seq_pair[q], first[:, None], axis=1)[:, 0])
+    reach_sym, avoid_sym = pair.reach & single, pair.avoid & single
     usable = spec.seq_valid[q] & (first < spec.seq_length[q])
     reach_props = jnp.any(reach_sym[..., None] & alphabet, axis=1)  # [C, P]
     avoid_props = jnp.any(avoid_sym[..., None] & alphabet, axis=1)  # [C, P]
