@@ -6,7 +6,8 @@ construction (the rule that guarantees it is stated per sampler); the tests conf
 
 Families:
 * reach-only `F(g1 & F(g2 & ... F gL))` and reach-avoid `!A1 U (R1 & (!A2 U (R2 & ...)))`
-  (SpecRLBench's samplers, and the paper's complexity grid);
+  (SpecRLBench's samplers), and `cyclic_reach_avoid`, the reach-avoid rows of the paper's
+  complexity table;
 * LTL2Action's `Until_a_b_c_d` and `Eventually_a_b_c_d` families;
 * `sequence_to_formula`: a training `ReachAvoidSequence` as a formula.
 """
@@ -121,6 +122,27 @@ def sample_reach_avoid(
         avoids.append(_pick(rng, [p for p in props if p not in reach + previous], num_avoid))
         reaches.append(reach)
         previous = reach
+    return reach_avoid_formula(reaches, avoids)
+
+
+def cyclic_reach_avoid(
+    propositions: Sequence[str], seq_len: int, num_avoid: int, start: int
+) -> str:
+    """The paper's complexity-table reach-avoid shape: propositions taken in cyclic order from
+    `propositions[start]`, `num_avoid` avoided then one reached per pair.
+
+    E.g. letters a..l, `seq_len=2, num_avoid=2, start=8` -> `!(i | j) U (k & (!(l | a) U b))`.
+    Satisfiable with one proposition at a time whenever `num_avoid + 2 <= len(propositions)`:
+    A_i is the `num_avoid` propositions after R_{i-1} in the cycle, so it never holds R_{i-1}
+    or R_i, and R_i differs from R_{i-1}.
+    """
+    props = _check_props(propositions, num_avoid + 2, "the cyclic reach-avoid chain")
+    if seq_len < 1 or num_avoid < 0 or not 0 <= start < len(props):
+        raise ValueError(f"need seq_len >= 1, num_avoid >= 0 and 0 <= start < {len(props)}, got "
+                         f"{seq_len}, {num_avoid}, {start}")
+    cycle = [props[(start + i) % len(props)] for i in range(seq_len * (num_avoid + 1))]
+    avoids = [cycle[i * (num_avoid + 1): i * (num_avoid + 1) + num_avoid] for i in range(seq_len)]
+    reaches = [[cycle[i * (num_avoid + 1) + num_avoid]] for i in range(seq_len)]
     return reach_avoid_formula(reaches, avoids)
 
 

@@ -10,8 +10,10 @@ Names:
 * `letter/complexity_paper/<reach_only|reach_avoid>/seq<L>_disj<D>`: the paper's example rows;
 * `letter/complexity/<reach_only|reach_avoid>/seq<L>_disj<D>`, L in 2..10, D in 0..3: the grid,
   `COMPLEXITY_SIZE` formulas per cell drawn from `COMPLEXITY_SEED`. Reach-only: L goals of D+1
-  propositions each. Reach-avoid: L pairs with one reach proposition and D+1 avoided ones (the
-  paper's example rows read that way: `seq2_disj1` = `!(a | b) U (c & (!(d | e) U f))`);
+  propositions each, consecutive goals disjoint. Reach-avoid: L pairs with one reach letter and
+  D+1 avoided ones, the letters taken in cyclic alphabetical order from a drawn start letter,
+  as every reach-avoid row of the paper's table is (`seq2_disj1` from i =
+  `!(i | j) U (k & (!(l | a) U b))`);
 * `<deepltl|genz>/<letter|zone>/<finite|infinite>`: the methods' own test-task lists.
 """
 
@@ -137,6 +139,10 @@ def complexity_formulas(
 ) -> tuple[str, ...]:
     """`size` distinct LetterWorld formulas of one complexity-grid cell, fixed by `seed`.
 
+    Reach-only: sampled goal chains. Reach-avoid: the cyclic chains of `size` distinct start
+    letters (the paper's rows are those from a, e and i); their automata have at most 193
+    states (seq10_disj0).
+
     Args:
         kind: "reach_only" or "reach_avoid".
         seq_len: number of goals (reach-only) or reach-avoid pairs.
@@ -147,12 +153,16 @@ def complexity_formulas(
     if kind not in COMPLEXITY_KINDS:
         raise ValueError(f"kind must be one of {COMPLEXITY_KINDS}, got {kind!r}")
     rng = np.random.default_rng([seed, COMPLEXITY_KINDS.index(kind), seq_len, num_disj])
+    if kind == "reach_avoid":
+        if size > len(LETTERS):
+            raise ValueError(f"a reach-avoid cell has {len(LETTERS)} formulas (one per start "
+                             f"letter), asked for {size}")
+        starts = rng.choice(len(LETTERS), size=size, replace=False).tolist()
+        return tuple(formulas.cyclic_reach_avoid(LETTERS, seq_len, num_disj + 1, int(start))
+                     for start in starts)
     found: dict[str, None] = {}
     for _ in range(100 * size):
-        if kind == "reach_only":
-            text = formulas.sample_reach_only(rng, LETTERS, seq_len, num_disj)
-        else:
-            text = formulas.sample_reach_avoid(rng, LETTERS, seq_len, 1, num_disj + 1)
+        text = formulas.sample_reach_only(rng, LETTERS, seq_len, num_disj)
         found.setdefault(text)
         if len(found) == size:
             return tuple(found)

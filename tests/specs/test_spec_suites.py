@@ -123,3 +123,30 @@ def test_complexity_grid_is_deterministic_and_seeded():
     )
     assert suites.complexity_formulas(*cell, seed=1) != suites.complexity_formulas(*cell)
     assert suites.complexity_formulas("reach_only", 4, 1) != suites.complexity_formulas(*cell)
+
+
+def test_grid_reach_avoid_rows_have_the_paper_shape():
+    # every reach-avoid row of the paper's table is a cyclic chain, and a member of its cell's
+    # 12 possible formulas (the grid draws 10 of them)
+    for name in specs.list_suites("letter/complexity_paper/reach_avoid/"):
+        seq_len, num_disj = (int(x) for x in name.rsplit("/", 1)[1][3:].split("_disj"))
+        every = suites.complexity_formulas("reach_avoid", seq_len, num_disj, size=12)
+        assert set(specs.suite(name)) <= set(every), name
+        assert set(specs.suite(f"letter/complexity/reach_avoid/seq{seq_len}_disj{num_disj}")) < set(
+            every
+        )
+    with pytest.raises(ValueError, match="at least 13 propositions"):
+        specs.formulas.cyclic_reach_avoid(suites.LETTERS, 2, 11, 0)
+
+
+def test_grid_reach_avoid_automata_stay_small():
+    from specrl_jax.automata import translate, zero_or_one
+
+    sizes = {}
+    for seq_len in suites.COMPLEXITY_SEQ_LENS:
+        for num_disj in suites.COMPLEXITY_DISJ:
+            # the formulas of a cell differ by a renaming of letters: one stands for all
+            text = suites.complexity_formulas("reach_avoid", seq_len, num_disj)[0]
+            aut = translate.translate(text, suites.LETTERS, zero_or_one(len(suites.LETTERS)))
+            sizes[seq_len, num_disj] = aut.num_states
+    assert max(sizes.values()) == sizes[10, 0] == 193
