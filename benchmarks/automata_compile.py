@@ -72,6 +72,8 @@ def compile_all() -> dict[str, float]:
     out["count"] = sum(len(c[1]) for c in paper_cases())
     out["letter_max_bytes"] = max(sizes)
     out["letter_mean_bytes"] = float(np.mean(sizes))
+    out["letter_min_bytes"] = min(sizes)
+    out["letter_count"] = len(sizes)
     return out
 
 
@@ -80,7 +82,7 @@ def child(_args) -> None:
 
     res = compile_all()
     print(f"{res['seconds']:.3f} {res['count']} {res['letter_max_bytes']} "
-          f"{res['letter_mean_bytes']:.0f}")
+          f"{res['letter_mean_bytes']:.0f} {res['letter_min_bytes']} {res['letter_count']}")
 
 
 def gpu_step(batch: int, steps: int, repeats: int) -> None:
@@ -170,8 +172,8 @@ def main() -> None:
         for label in ("cold", "cached"):
             res = subprocess.run([sys.executable, __file__, "--child"], env=env, check=True,
                                  capture_output=True, text=True).stdout.split()
-            print(f"{label}: {float(res[0]):.3f} s for {res[1]} formulas; LetterWorld spec "
-                  f"bytes max {res[2]}, mean {res[3]}")
+            print(f"{label}: {float(res[0]):.3f} s for {res[1]} formulas; {res[5]} LetterWorld "
+                  f"specs: bytes min {res[4]}, max {res[2]}, mean {res[3]}")
     finally:
         shutil.rmtree(cache, ignore_errors=True)
 

@@ -1,6 +1,6 @@
 """Reach-avoid subgoals of every automaton state, precomputed on the host as padded arrays.
 
-Two kinds, both as masks over alphabet symbols:
+Two kinds, over alphabet symbols:
 
 * one-step subgoals (GenZ-LTL, GCRL-LTL): for each state, every labelled transition to another
   live state (reach = the symbols leading there, target = that state) plus, where the state has
@@ -8,7 +8,9 @@ Two kinds, both as masks over alphabet symbols:
   the dead sink. Epsilon transitions give no one-step subgoal.
 * DeepLTL's candidate sequences: the depth-first search of the reference (all simple paths into
   an accepting cycle, with its containment pruning and avoid sets), loops unrolled twice for
-  infinite-horizon specs and dropped for co-safe ones; epsilon steps are marked.
+  infinite-horizon specs and dropped for co-safe ones; epsilon steps are marked. The search is
+  memoised so that it is complete (see `_Search`); steps are stored as ids into a table of the
+  distinct (reach, avoid, epsilon slot) pairs.
 """
 
 from __future__ import annotations
