@@ -29,6 +29,7 @@ def main() -> None:
     parser.add_argument("--methods", nargs="+", default=["genz", "deepltl"], choices=list(experiment.METHODS))
     parser.add_argument("--env", default="LetterLTL0-v0")
     parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--seed", type=int, default=0, help="base key of the training runs and map bank")
     parser.add_argument("--total-steps", type=int, default=15_000_000)
     parser.add_argument("--num-envs", type=int, default=None)
     parser.add_argument("--num-steps", type=int, default=None)
@@ -64,7 +65,7 @@ def main() -> None:
             summary = summaries[method] = {"loaded_from": loads[method]}
         else:
             params, summary = experiment.train(
-                method, args.env, out / method, overrides, args.seeds, map_bank=args.map_bank,
+                method, args.env, out / method, overrides, args.seeds, seed=args.seed, map_bank=args.map_bank,
                 chunk_updates=args.chunk, max_wall_s=args.max_wall,
             )
             summaries[method] = summary

@@ -43,7 +43,8 @@ def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int
         raise ValueError(f"the baselines train on LetterWorld for now; got env {env_id!r}")
     world, params = make(env_id)
     if map_bank:
-        params = world.with_map_bank(key, params, num_maps=map_bank)
+        # wait for the bank here: dispatched asynchronously, it would finish inside training
+        params = jax.block_until_ready(world.with_map_bank(key, params, num_maps=map_bank))
     return world, params, module.make_method(world, params), module.ppo_config(**ppo_overrides)
 
 
@@ -52,7 +53,9 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
           log: Callable[[str], None] = print, max_wall_s: float | None = None) -> tuple[Any, dict[str, Any]]:
     """Train `num_seeds` runs; returns `(params with a leading seed axis, training summary)`."""
     key_bank, key_train = jax.random.split(jax.random.key(seed))
+    start = time.perf_counter()
     _world, _params, method_obj, config = build(method, env_id, ppo_overrides, map_bank, key_bank)
+    setup = time.perf_counter() - start
     trainer = make_train(config, method_obj)
     start = time.perf_counter()
     runner = runs.train_in_run_dir(
@@ -68,6 +71,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         "method": method, "env": env_id, "num_seeds": num_seeds, "ppo": dataclasses.asdict(config),
         "env_steps_per_seed": rows[-1]["env_steps"] if rows else 0,
         "complete": int(runner.update[0]) >= config.num_updates,
+        "setup_s": setup,  # env and map bank, before training
         "wall_s_this_session": wall,
         "env_steps_per_s": rows[-1]["env_steps"] * num_seeds / rows[-1]["wall_s"] if rows else 0.0,
         "final_success_rate": rows[-1].get("success_rate") if rows else None,

@@ -57,6 +57,19 @@ def _rows(metrics: dict[str, Any], num: int, summarise: Callable) -> list[dict[s
     return out
 
 
+def _seed_batched(trainer: Trainer, num_seeds: int) -> Callable:
+    """`trainer.updates` over a leading seed axis. One seed runs unbatched: under `vmap` the
+    KL stop's while-loop predicate is batched, which selects the whole carry every epoch."""
+    if num_seeds > 1:
+        return jax.vmap(trainer.updates, in_axes=(0, None, None))
+
+    def single(runner: RunnerState, num_updates: int, active: jax.Array):
+        runner, metrics = trainer.updates(jax.tree.map(lambda x: x[0], runner), num_updates, active)
+        return jax.tree.map(lambda x: x[None], (runner, metrics))
+
+    return single
+
+
 def train_in_run_dir(
     trainer: Trainer,
     key: jax.Array,
@@ -88,7 +101,7 @@ def train_in_run_dir(
         runner = load_checkpoint(run_dir / CHECKPOINT, runner)
         log(f"resumed at update {int(runner.update[0])} from {run_dir / CHECKPOINT}")
     # One compiled chunk for every chunk: a shorter last chunk runs the same scan, partly idle.
-    updates = jax.jit(jax.vmap(trainer.updates, in_axes=(0, None, None)), static_argnums=1, donate_argnums=0)
+    updates = jax.jit(_seed_batched(trainer, num_seeds), static_argnums=1, donate_argnums=0)
     total = cfg.num_updates if max_updates is None else min(cfg.num_updates, max_updates)
     start_wall = time.perf_counter()
     done_at_start = done = int(runner.update[0])

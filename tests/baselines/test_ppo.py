@@ -222,3 +222,13 @@ def test_sharded_and_unsharded_runs_agree():
     code = SHARDED.format(here=str(Path(__file__).parent))
     proc = subprocess.run([sys.executable, "-c", code], check=False, env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0 and "OK" in proc.stdout, proc.stderr[-3000:]
+
+
+def test_one_seed_run_dir_trains_like_the_plain_trainer(tmp_path):
+    trainer = make_train(TINY, ChainMethod())
+    key = jax.random.key(9)
+    runner = runs.train_in_run_dir(trainer, key, tmp_path, chunk_updates=3, log=lambda s: None)
+    plain, _ = jax.jit(trainer)(jax.random.split(key, 1)[0])
+    assert runner.update.shape == (1,) and int(runner.update[0]) == TINY.num_updates
+    for a, b in zip(jax.tree.leaves(plain.params), jax.tree.leaves(runner.params)):
+        np.testing.assert_allclose(a, b[0], rtol=1e-5, atol=1e-6)
