@@ -10,6 +10,9 @@ Compile time is measured apart; the run is timed after one warm-up call, with
   bank   params from `env.with_map_bank(key, params, --bank-size)` when the env offers it;
   off    no auto-reset (the raw step, for reference: what resets cost).
 
+`--physics warp` builds Zone envs with MuJoCo Warp through MJX (needs warp-lang) instead of MJX's
+JAX implementation; the env column then reads e.g. `CarLTL0-v0 (warp)`.
+
 Results are appended to benchmarks/RESULTS.md (or --results) with device, versions, date, command.
 """
 
@@ -63,7 +66,7 @@ def make_rollout(env: BatchedEnv, params: Any, num_steps: int):
 def measure(
     env_id: str, mode: str, num_envs: int, args: argparse.Namespace
 ) -> dict[str, Any] | None:
-    env, params = specrl_jax.make(env_id)
+    env, params = specrl_jax.make(env_id, **({"physics": args.physics} if args.physics else {}))
     key_bank, key_reset, key_run = jax.random.split(jax.random.key(args.seed), 3)
     if mode == "bank":
         if not hasattr(env, "with_map_bank"):
@@ -87,7 +90,7 @@ def measure(
         times.append(time.perf_counter() - start)
     steps = num_envs * args.steps
     return {
-        "env": env_id,
+        "env": env_id + (f" ({args.physics})" if args.physics else ""),
         "reset": mode,
         "batch": num_envs,
         "steps": args.steps,
@@ -152,6 +155,10 @@ def parse_args() -> argparse.Namespace:
         default="threefry2x32",
         choices=["threefry2x32", "rbg", "unsafe_rbg"],
         help="JAX PRNG implementation (threefry2x32 is JAX's default)",
+    )
+    parser.add_argument(
+        "--physics", choices=["jax", "warp"], default=None,
+        help="physics backend of Zone envs (default: the env's, jax)",
     )
     parser.add_argument("--results", default="benchmarks/RESULTS.md")
     args = parser.parse_args()

@@ -5,8 +5,9 @@ through `ZoneEnv.step_env` against MuJoCo C on the same model; prints the max de
 agent body position per step. `--x64` runs MJX in float64 (separates float32 rounding, which
 chaotic dynamics amplify, from modelling differences).
 
-Throughput: 10 `mjx.step`s + `mjx.forward` per env step, batched, no sensors, labels or resets:
-what the physics alone allows. Results are appended to benchmarks/RESULTS.md.
+Throughput: 10 physics steps + a forward pass per env step (`Physics.step`), batched, no LiDAR,
+labels or resets: what the physics alone allows. `--physics warp` measures MuJoCo Warp through MJX
+(needs warp-lang). Results are appended to benchmarks/RESULTS.md.
 """
 
 from __future__ import annotations
@@ -29,13 +30,15 @@ import numpy as np
 
 from specrl_jax.envs.zone import make_zone
 from specrl_jax.envs.zone.config import level_config
-from specrl_jax.envs.zone.mjx_import import mjx
 from specrl_jax.envs.zone.models import Solver
 
 
-def fidelity(robot: str, steps: int, seeds: int, solver: Solver | None) -> np.ndarray:
-    """float[seeds, steps]: max |MJX - C| of the agent body position (metres) per step."""
-    env, params = make_zone(level_config(robot, 0, solver=solver))
+def fidelity(
+    robot: str, steps: int, seeds: int, solver: Solver | None, physics: str, settle: int = 0
+) -> np.ndarray:
+    """float[seeds, steps]: max |MJX - C| of the agent body position (metres) per step. With
+    `settle`, MuJoCo C first runs that many substeps at zero control and both continue from there."""
+    env, params = make_zone(level_config(robot, 0, solver=solver, physics=physics))
     step = jax.jit(env.step_env)
     reset = jax.jit(env.reset)
     out = []
@@ -45,6 +48,17 @@ def fidelity(robot: str, steps: int, seeds: int, solver: Solver | None) -> np.nd
         actions = rng.uniform(-1, 1, (steps, env.robot.action_dim)).astype(np.float32)
         data = mujoco.MjData(env.mj_model)
         data.qpos[:] = np.asarray(state.start_qpos, np.float64)
+        if settle:
+            for _ in range(settle):
+                mujoco.mj_step(env.mj_model, data)
+            dtype = state.physics.qpos.dtype
+            start = jax.jit(env.physics.init)(jnp.asarray(data.qpos, dtype))
+            state = state.replace(
+                physics=start.replace(
+                    qvel=jnp.asarray(data.qvel, dtype),
+                    qacc_warmstart=jnp.asarray(data.qacc_warmstart, dtype),
+                )
+            )
         deviation = []
         for a in actions:
             _, state, *_ = step(jax.random.key(0), state, jnp.asarray(a), params)
@@ -52,35 +66,31 @@ def fidelity(robot: str, steps: int, seeds: int, solver: Solver | None) -> np.nd
             for _ in range(10):
                 mujoco.mj_step(env.mj_model, data)
             mujoco.mj_forward(env.mj_model, data)
-            deviation.append(np.abs(np.asarray(state.data.xpos[1]) - data.xpos[1]).max())
+            deviation.append(np.abs(np.asarray(state.physics.agent_pos) - data.xpos[1]).max())
         out.append(deviation)
     return np.array(out)
 
 
-def physics_throughput(robot: str, batch: int, steps: int, solver: Solver | None) -> tuple[float, float]:
+def physics_throughput(
+    robot: str, batch: int, steps: int, solver: Solver | None, physics: str
+) -> tuple[float, float]:
     """(env-steps/s, compile seconds) of the batched physics alone."""
-    env, params = make_zone(level_config(robot, 0, solver=solver))
-    model = env.mjx_model
+    env, params = make_zone(level_config(robot, 0, solver=solver, physics=physics))
     _, state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(
         jax.random.split(jax.random.key(0), batch), params
     )
-
-    def one(data, ctrl):
-        data = data.replace(ctrl=ctrl)
-        data = jax.lax.fori_loop(0, 10, lambda _, d: mjx.step(model, d), data)
-        return mjx.forward(model, data)
 
     def body(carry, _):
         key, data = carry
         key, key_action = jax.random.split(key)
         ctrl = jax.random.uniform(key_action, (batch, env.robot.action_dim), minval=-1, maxval=1)
-        return (key, jax.vmap(one)(data, ctrl)), None
+        return (key, jax.vmap(env.physics.step)(data, ctrl)), None
 
     run = jax.jit(lambda key, data: jax.lax.scan(body, (key, data), None, steps)[0][1])
     start = time.perf_counter()
-    compiled = run.lower(jax.random.key(1), state.data).compile()
+    compiled = run.lower(jax.random.key(1), state.physics).compile()
     compile_s = time.perf_counter() - start
-    data = jax.block_until_ready(compiled(jax.random.key(1), state.data))
+    data = jax.block_until_ready(compiled(jax.random.key(1), state.physics))
     start = time.perf_counter()
     data = jax.block_until_ready(compiled(jax.random.key(2), data))
     return batch * steps / (time.perf_counter() - start), compile_s
@@ -94,38 +104,72 @@ def main() -> None:
     parser.add_argument("--x64", action="store_true")
     parser.add_argument("--batches", nargs="*", type=int, default=[])
     parser.add_argument("--bench-steps", type=int, default=50)
-    parser.add_argument("--solver", nargs=3, type=int, metavar=("ITER", "LS_ITER", "CONDIM"),
-                        help="use these solver settings instead of the robot's default")
+    parser.add_argument(
+        "--solver",
+        nargs=3,
+        type=int,
+        metavar=("ITER", "LS_ITER", "CONDIM"),
+        help="use these solver settings instead of the robot's default",
+    )
+    parser.add_argument("--physics", default="jax", choices=["jax", "warp"])
+    parser.add_argument(
+        "--settle",
+        type=int,
+        default=0,
+        help="fidelity from the state after this many C substeps at rest",
+    )
     parser.add_argument("--results", default="benchmarks/RESULTS.md")
     args = parser.parse_args()
     device = jax.devices()[0]
     lines = [
         "",
-        (f"## Zone physics: MJX vs MuJoCo C, physics-only throughput ({device.device_kind}, "
-         f"{datetime.date.today().isoformat()})"),
+        (
+            f"## Zone physics: MJX vs MuJoCo C, physics-only throughput ({device.device_kind}, "
+            f"{datetime.date.today().isoformat()})"
+        ),
         "",
-        (f"Versions: jax {jax.__version__}, jaxlib {jaxlib.__version__}, mujoco {mujoco.__version__}, "
-         f"MJX {'float64' if args.x64 else 'float32'}. Command: `{shlex.join(['python', *sys.argv])}`"),
+        (
+            f"Versions: jax {jax.__version__}, jaxlib {jaxlib.__version__}, mujoco {mujoco.__version__}, "
+            f"MJX {'float64' if args.x64 else 'float32'}, physics {args.physics}. Command: `{shlex.join(['python', *sys.argv])}`"
+        ),
         "",
     ]
     solver = Solver(*args.solver) if args.solver else None
-    label = "default" if solver is None else (
-        f"iterations {solver.iterations}, ls {solver.ls_iterations}, condim {solver.condim}"
+    label = (
+        "default"
+        if solver is None
+        else (f"iterations {solver.iterations}, ls {solver.ls_iterations}, condim {solver.condim}")
     )
     if args.steps:
-        lines += [f"Solver: {label}.", "", "| robot | seeds | max deviation after 10 / 20 / last steps (m) |",
-                  "|---|---|---|"]
+        lines += [
+            f"Solver: {label}."
+            + (f" Start settled for {args.settle} substeps in C." if args.settle else ""),
+            "",
+            "| robot | seeds | max deviation after 10 / 20 / last steps (m) |",
+            "|---|---|---|",
+        ]
         for robot in args.robots:
-            dev = fidelity(robot, args.steps, args.seeds, solver).max(axis=0)
+            dev = fidelity(robot, args.steps, args.seeds, solver, args.physics, args.settle).max(
+                axis=0
+            )
             marks = [dev[min(9, len(dev) - 1)], dev[min(19, len(dev) - 1)], dev[-1]]
-            lines.append(f"| {robot} | {args.seeds} | " + " / ".join(f"{d:.2e}" for d in marks)
-                         + f" ({len(dev)} steps) |")
+            lines.append(
+                f"| {robot} | {args.seeds} | "
+                + " / ".join(f"{d:.2e}" for d in marks)
+                + f" ({len(dev)} steps) |"
+            )
             print(lines[-1], flush=True)
     if args.batches:
-        lines += ["", "| robot | solver | batch | physics env-steps/s | compile s |", "|---|---|---|---|---|"]
+        lines += [
+            "",
+            "| robot | solver | batch | physics env-steps/s | compile s |",
+            "|---|---|---|---|---|",
+        ]
         for robot in args.robots:
             for batch in args.batches:
-                rate, compile_s = physics_throughput(robot, batch, args.bench_steps, solver)
+                rate, compile_s = physics_throughput(
+                    robot, batch, args.bench_steps, solver, args.physics
+                )
                 lines.append(f"| {robot} | {label} | {batch} | {rate:,.0f} | {compile_s:.1f} |")
                 print(lines[-1], flush=True)
     with open(args.results, "a") as f:

@@ -86,7 +86,7 @@ def test_thrust_moves_along_the_heading_and_labels_follow(world):
         _, state, _, terminated, truncated, info = step(jax.random.key(t), state, action(1.0, 0.0), params)
         labels.append(info["propositions"].tolist())
         assert not terminated and not truncated
-    x, y = np.asarray(state.data.xpos[1, :2])
+    x, y = np.asarray(state.physics.agent_pos[:2])
     assert 0.01 < x < 0.02 and abs(y) < 1e-6  # 2.9 m/s^2 from rest for 0.1 s
     assert labels[0] == [False, False, False, False] and labels[-1] == [False, True, False, False]
 

@@ -96,7 +96,7 @@ def test_mjx_tracks_mujoco_c(robot, bound):
     positions = []
     for a in actions:
         _, state, *_ = step(jax.random.key(0), state, jnp.asarray(a), params)
-        positions.append(np.asarray(state.data.xpos[1]))
+        positions.append(np.asarray(state.physics.agent_pos))
     reference = c_rollout(env.mj_model, start, actions)
     assert np.linalg.norm(reference[-1, :2] - start[:2]) > 0.05  # it moved
     assert np.abs(np.array(positions) - reference).max() < bound

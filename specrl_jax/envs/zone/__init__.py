@@ -1,7 +1,9 @@
 """Zone worlds: Point, Car and Ant robots among coloured zones, in MuJoCo MJX.
 
 Registers `{Point,Car,Ant}LTL{0,1,2}-v0` with the suffixes `.partial`, `.overlap` and
-`.partial_overlap`; `make_zone(config)` builds a custom world from a `ZoneConfig`.
+`.partial_overlap`; `make_zone(config)` builds a custom world from a `ZoneConfig`. Options: the
+physics backend (`physics="jax"` default, or `"warp"` for MuJoCo Warp through MJX) and opt-in
+layout-bank resets (`env.with_map_bank(key, params, num_maps)`).
 """
 
 from __future__ import annotations

@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, field
 
 from specrl_jax.envs.zone.models import ROBOTS, Solver
+from specrl_jax.envs.zone.physics import BACKENDS
 
 #: The 16 colour names the original accepts for custom worlds.
 COLOR_NAMES = (
@@ -55,6 +56,8 @@ class ZoneConfig:
             zones of different colours overlap.
         horizon: default `params.max_steps`.
         solver: physics solver settings (None: the robot's default).
+        physics: "jax" (MJX's JAX implementation, any device) or "warp" (MuJoCo Warp through
+            MJX; needs warp-lang and a CUDA GPU, or a CPU where warp-lang can compile).
         wall: |x| or |y| at which the episode terminates, metres.
         travel: radius of a moving zone's circle, metres.
         angular_speed: of a moving zone, rad per simulated second.
@@ -74,6 +77,7 @@ class ZoneConfig:
     overlap_alphabet: bool = False
     horizon: int = 1000
     solver: Solver | None = None
+    physics: str = "jax"
     wall: float = 3.3
     travel: float = 0.3
     angular_speed: float = 2.0
@@ -82,6 +86,8 @@ class ZoneConfig:
     num_bins: int = field(default=16, init=False)
 
     def __post_init__(self) -> None:
+        if self.physics not in BACKENDS:
+            raise ValueError(f"unknown physics backend {self.physics!r}; accepted: {BACKENDS}")
         if self.robot not in ROBOTS:
             raise ValueError(f"unknown robot {self.robot!r}; accepted: {tuple(ROBOTS)}")
         colors = tuple(self.colors) if isinstance(self.colors, (list, tuple)) else None

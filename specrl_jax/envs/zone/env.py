@@ -14,33 +14,37 @@ from specrl_jax.envs import spaces
 from specrl_jax.envs.base import Env, Info, Obs
 from specrl_jax.envs.zone import labels as labels_lib
 from specrl_jax.envs.zone.config import ZoneConfig
-from specrl_jax.envs.zone.layout import check_feasible, sample_positions
-from specrl_jax.envs.zone.mjx_import import mjx
+from specrl_jax.envs.zone.layout import check_feasible, from_bank, sample_bank, sample_positions
 from specrl_jax.envs.zone.models import ROBOTS, load_model
+from specrl_jax.envs.zone.physics import SUBSTEPS, Physics, PhysicsState
 from specrl_jax.envs.zone.sensors import compute_lidar, robot_sensor_reader, wall_sensor
 
-SUBSTEPS = 10
 ANT_FALL_HEIGHT = 0.08
 ANT_JOINT_NOISE = 0.1
 
 
 @struct.dataclass
 class ZoneParams:
+    """Values that may vary without changing compiled shapes.
+
+    Attributes:
+        max_steps: horizon, sets `truncated`.
+        map_bank: None (default: an exact layout at every reset) or float32[M, 1 + Z, 2] agent
+            and zone centres from `ZoneEnv.with_map_bank`, the opt-in fast reset.
+    """
+
     max_steps: int = 1000
+    map_bank: jax.Array | None = None
 
 
 @struct.dataclass
 class ZoneState:
-    data: mjx.Data  # physics state of the robot
+    physics: PhysicsState  # the robot's MuJoCo state and the outputs observed
     start_qpos: jax.Array  # float32[nq], the robot's pose at the episode start
     zone_xy: jax.Array  # float32[Z, 2], zone (circle) centres, metres
     zone_direction: jax.Array  # float32[Z], +1 / -1 for moving zones, 0 for static ones
     zone_phase: jax.Array  # float32[Z], rad, phase of a moving zone at t = 0
     time: jax.Array  # int32, env steps since reset
-
-
-def _has_no_constraints(model: mjx.Model) -> bool:
-    return jax.eval_shape(mjx.make_data, model)._impl.efc_J.size == 0
 
 
 def _yaw_quat(yaw: jax.Array) -> jax.Array:
@@ -57,7 +61,8 @@ class ZoneEnv(Env):
       joint torques), clipped to [-1, 1]; 10 physics substeps per step.
     Labels: colour p holds iff the agent body is within the radius of a zone of colour p.
     Termination: |x| or |y| >= 3.3 (the walls), the Ant's torso z <= 0.08. Reward: always 0.
-    State: `ZoneState`.
+    State: `ZoneState`. Physics: `config.physics` ("jax" MJX, or "warp" MuJoCo Warp through MJX).
+    Resets: an exact layout each time, or opt-in draws from `with_map_bank`.
     """
 
     def __init__(self, config: ZoneConfig):
@@ -68,10 +73,7 @@ class ZoneEnv(Env):
         self.propositions = config.propositions
         self._num_parallel = check_feasible(config)
         self.mj_model = load_model(config.robot, config.solver)
-        self.mjx_model = mjx.put_model(self.mj_model)
-        # MJX's forward skips the acceleration sensors of a model without any constraint row
-        # (the pruned Point); they are then computed here, as MuJoCo C always does.
-        self._add_sensor_acc = self.mj_model.nsensor > 0 and _has_no_constraints(self.mjx_model)
+        self.physics = Physics(self.mj_model, config.physics)
         self.frame_dt = SUBSTEPS * float(self.mj_model.opt.timestep)
         colors = [c for c, n in zip(config.colors, config.zones_per_color) for _ in range(n)]
         self.zone_color = np.asarray([self.propositions.index(c) for c in colors], np.int32)
@@ -112,8 +114,35 @@ class ZoneEnv(Env):
     # ---- reset --------------------------------------------------------------------------
     def reset_env(self, key: jax.Array, params: ZoneParams) -> tuple[Obs, ZoneState]:
         key_layout, key_pose = jax.random.split(key)
-        xy, _ = sample_positions(key_layout, self.config, self._num_parallel)
+        if params.map_bank is None:
+            xy, _ = sample_positions(key_layout, self.config, self._num_parallel)
+        else:
+            xy = from_bank(key_layout, params.map_bank)
         return self.reset_to(key_pose, self._random_layout(key_pose, xy), params)
+
+    def with_map_bank(
+        self, key: jax.Array, params: ZoneParams | None = None, num_maps: int = 65536
+    ) -> ZoneParams:
+        """Params whose resets draw agent and zone positions from `num_maps` exact layouts.
+
+        Each reset takes a uniform bank entry under a uniform rotation or reflection of the
+        square (8 of them); the agent's yaw, the Ant's joints and the moving zones' direction
+        and phase stay fresh per episode. Each layout is still distributed as the original's,
+        but positions repeat across resets (at most 8 x num_maps distinct). The bank costs
+        8 (1 + Z) bytes per entry.
+        """
+        if not isinstance(num_maps, int) or isinstance(num_maps, bool) or num_maps < 1:
+            raise ValueError(f"num_maps must be a positive int, got {num_maps!r}")
+        params = self.default_params if params is None else params
+        bank, ok = jax.jit(sample_bank, static_argnums=(1, 2, 3))(
+            key, self.config, self._num_parallel, num_maps
+        )
+        if not bool(jnp.all(ok)):
+            raise ValueError(
+                f"{int((~ok).sum())} of {num_maps} layouts could not be placed within "
+                f"max_restarts={self.config.max_restarts}; use fewer or smaller zones"
+            )
+        return params.replace(map_bank=bank.astype(jnp.float32))
 
     def _random_layout(self, key: jax.Array, xy: jax.Array) -> dict[str, jax.Array]:
         key_yaw, key_joints, key_direction, key_phase = jax.random.split(key, 4)
@@ -156,11 +185,8 @@ class ZoneEnv(Env):
         else:
             position = jnp.concatenate([agent_xy, jnp.array([self.robot.z_height])])
             qpos = jnp.concatenate([position, _yaw_quat(yaw), jnp.asarray(layout["joint_qpos"])])
-        data = mjx.make_data(self.mjx_model)
-        data = data.replace(qpos=qpos.astype(data.qpos.dtype))
-        data = self._forward(data)
         state = ZoneState(
-            data=data,
+            physics=self.physics.init(qpos),
             start_qpos=qpos,
             zone_xy=jnp.asarray(layout["zone_xy"], jnp.float32),
             zone_direction=jnp.asarray(layout["zone_direction"], jnp.float32),
@@ -174,23 +200,13 @@ class ZoneEnv(Env):
         self, key: jax.Array, state: ZoneState, action: jax.Array, params: ZoneParams
     ) -> tuple[Obs, ZoneState, jax.Array, jax.Array, Info]:
         del key, params
-        data = self._simulate(state.data, action)
-        state = state.replace(data=data, time=state.time + 1)
-        position = data.xpos[1]
+        physics = self.physics.step(state.physics, action)
+        state = state.replace(physics=physics, time=state.time + 1)
+        position = physics.agent_pos
         outside = jnp.any(jnp.abs(position[:2]) >= self.config.wall)
         fallen = position[2] <= ANT_FALL_HEIGHT if self.config.robot == "Ant" else False
         info = {"propositions": self._labels(state)}
         return self._observe(state), state, jnp.zeros((), jnp.float32), outside | fallen, info
-
-    def _simulate(self, data: mjx.Data, action: jax.Array) -> mjx.Data:
-        """10 physics substeps, then the forward pass the original runs before sensing."""
-        data = data.replace(ctrl=jnp.clip(action, -1.0, 1.0).astype(data.ctrl.dtype))
-        data = jax.lax.fori_loop(0, SUBSTEPS, lambda _, d: mjx.step(self.mjx_model, d), data)
-        return self._forward(data)
-
-    def _forward(self, data: mjx.Data) -> mjx.Data:
-        data = mjx.forward(self.mjx_model, data)
-        return mjx.sensor_acc(self.mjx_model, data) if self._add_sensor_acc else data
 
     def zone_positions(self, state: ZoneState) -> jax.Array:
         """float32[Z, 2]: current zone centres, metres. A moving zone runs a circle of radius
@@ -204,18 +220,21 @@ class ZoneEnv(Env):
 
     def _labels(self, state: ZoneState) -> jax.Array:
         return labels_lib.compute_labels(
-            state.data.xpos[1, :2], self.zone_positions(state), jnp.asarray(self.zone_radius),
+            state.physics.agent_pos[:2], self.zone_positions(state), jnp.asarray(self.zone_radius),
             jnp.asarray(self.color_mask),
         )
 
     def _observe(self, state: ZoneState) -> Obs:
-        data = state.data
+        physics = state.physics
         ap = compute_lidar(
-            data.xpos[1], data.xmat[1], self.zone_positions(state), jnp.asarray(self.color_mask),
+            physics.agent_pos, physics.agent_mat, self.zone_positions(state), jnp.asarray(self.color_mask),
             self.config.num_bins, self.config.partial,
         )
         ego = jnp.concatenate(
-            [self._read_robot_sensors(data.sensordata), wall_sensor(data.xpos[1, :2], self.config.wall)]
+            [
+                self._read_robot_sensors(physics.sensordata),
+                wall_sensor(physics.agent_pos[:2], self.config.wall),
+            ]
         )
         return {"ap": ap.astype(jnp.float32), "ego": ego.astype(jnp.float32)}
 

@@ -128,3 +128,38 @@ def check_feasible(config: ZoneConfig) -> int:
     # Capped: a round holds [num_parallel, max_tries, N] distances per env, which at level 2
     # (about 89 attempts per layout) and batch 65,536 would not fit in GPU memory uncapped.
     return int(min(MAX_PARALLEL, 2 ** math.ceil(math.log2(max(target, 1)))))
+
+
+# ------------------------------------------------------------ layout bank (opt-in fast resets)
+
+
+def sample_bank(
+    key: jax.Array, config: ZoneConfig, num_parallel: int, num_layouts: int, chunk: int = 4096
+) -> tuple[jax.Array, jax.Array]:
+    """`num_layouts` exact layouts: `(xy float32[M, 1 + Z, 2], ok bool[M])`, drawn `chunk` at
+    a time (a chunk holds [chunk, num_parallel, max_tries, 1 + Z] distances per round)."""
+    chunk = min(chunk, num_layouts)
+    num_chunks = -(-num_layouts // chunk)
+    sample = jax.vmap(lambda k: sample_positions(k, config, num_parallel))
+    keys = jax.random.split(key, num_chunks * chunk).reshape(num_chunks, chunk)
+    xy, ok = jax.lax.map(sample, keys)
+    return xy.reshape(-1, *xy.shape[2:])[:num_layouts], ok.reshape(-1)[:num_layouts]
+
+
+def from_bank(key: jax.Array, bank: jax.Array) -> jax.Array:
+    """A bank entry under a symmetry of the square: `float32[1 + Z, 2]`.
+
+    Uniform entry, then one of the 8 rotations and reflections about the origin, uniformly:
+    the placement squares and the distance rules are invariant under them, so each image of
+    an exact layout is as likely as the layout itself.
+    """
+    key_entry, key_symmetry = jax.random.split(key)
+    xy = jnp.asarray(bank)[jax.random.randint(key_entry, (), 0, bank.shape[0])]
+    symmetry = jax.random.randint(key_symmetry, (), 0, 8)
+    quarter_turns, reflect = symmetry % 4, symmetry >= 4
+    x = jnp.where(reflect, -xy[:, 0], xy[:, 0])
+    y = xy[:, 1]
+    for turn in range(1, 4):  # rotate by 90 degrees `quarter_turns` times: (x, y) -> (-y, x)
+        rotated = quarter_turns >= turn
+        x, y = jnp.where(rotated, -y, x), jnp.where(rotated, x, y)
+    return jnp.stack([x, y], axis=-1)

@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# Zone robots with MuJoCo Warp (through MJX) on the lent GPU: env throughput with exact auto-reset,
+# then MJX-Warp against MuJoCo C. Needs warp-lang and the project on PYTHONPATH; writes $OUT/results.md
+# and $OUT/log. Each measurement has its own time limit, so one that hangs does not stop the rest.
+set -u
+results="$OUT/results.md"
+measure() {
+  local limit=$1
+  shift
+  echo "== $(date +%T) $*"
+  timeout "$limit" python "$@" --results "$results" 2>&1 | grep -v '^Module \|^Warp \|^   '
+  echo "== exit ${PIPESTATUS[0]}"
+}
+nvidia-smi --query-gpu=name,driver_version --format=csv,noheader
+python -c "import jax, warp, mujoco; print('jax', jax.__version__, 'warp', warp.__version__, 'mujoco', mujoco.__version__)"
+if [ "${1:-1}" = 1 ]; then
+  measure 150 benchmarks/env_throughput.py --envs CarLTL0-v0 --physics warp --batches 65536 262144 --resets exact --steps 20 --repeats 2
+  measure 110 benchmarks/env_throughput.py --envs AntLTL0-v0 --physics warp --batches 65536 --resets exact --steps 10 --repeats 2
+  measure 80 benchmarks/zone_physics.py --physics warp --robots Car Ant --steps 30 --seeds 2
+  measure 60 benchmarks/env_throughput.py --envs PointLTL0-v0 --physics warp --batches 262144 --resets exact --steps 20 --repeats 2
+  measure 60 benchmarks/env_throughput.py --envs AntLTL0-v0 --physics warp --batches 262144 --resets exact --steps 10 --repeats 2
+else  # second session: layout banks (MJX-JAX), and the Warp rows the first one missed
+  measure 200 benchmarks/env_throughput.py --envs PointLTL2-v0 PointLTL1-v0 PointLTL0-v0 --resets bank --batches 65536 262144 --steps 20 --repeats 2 --bank-size 65536
+  measure 150 benchmarks/env_throughput.py --envs AntLTL0-v0 --physics warp --batches 262144 --resets exact --steps 10 --repeats 2
+  measure 90 benchmarks/env_throughput.py --envs CarLTL0-v0 AntLTL0-v0 --physics warp --batches 65536 --resets off --steps 10 --repeats 2
+fi

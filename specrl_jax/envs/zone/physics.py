@@ -1,0 +1,202 @@
+"""Physics backends of the Zone robots: MJX's JAX implementation, or MuJoCo Warp through MJX.
+
+The env keeps only the MuJoCo state that the next step reads (`qpos`, `qvel`, `qacc_warmstart`)
+and the outputs it observes; a full `mjx.Data` is rebuilt from a template at every step. This
+keeps the env state small, and it is what the Warp backend needs: its contact buffer is one
+array shared by all worlds of a batch (`naconmax` rows in all), which must not be selected
+leaf-wise by auto-reset and must be sized by the number of worlds. `Physics.advance` therefore
+runs under a custom batching rule that flattens any nesting of `vmap`s into one batch of worlds
+and sizes the buffer to it.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from flax import struct
+
+from specrl_jax.envs.zone.mjx_import import mjx
+
+#: Accepted values of `ZoneConfig.physics`.
+BACKENDS = ("jax", "warp")
+SUBSTEPS = 10
+
+
+@struct.dataclass
+class PhysicsState:
+    """What one world carries between env steps (dtype: MJX's, float32 unless x64).
+
+    Attributes:
+        qpos: [nq] generalised positions.
+        qvel: [nv] generalised velocities.
+        qacc_warmstart: [nv] the solver's warm start (MuJoCo carries it from step to step).
+        agent_pos: [3] world position of the robot body (body 1), metres.
+        agent_mat: [3, 3] its rotation (world <- body).
+        sensordata: [nsensordata] the model's sensors after the last forward pass.
+    """
+
+    qpos: jax.Array
+    qvel: jax.Array
+    qacc_warmstart: jax.Array
+    agent_pos: jax.Array
+    agent_mat: jax.Array
+    sensordata: jax.Array
+
+
+def warp_available() -> bool:
+    """Whether MJX can use MuJoCo Warp here (`warp-lang` importable)."""
+    from mujoco.mjx import warp as mjx_warp
+
+    return bool(mjx_warp.WARP_INSTALLED)
+
+
+def _max_contacts(model: mujoco.MjModel) -> int:
+    """Contacts one world can have: the slots MJX-JAX allocates for the model's pairs."""
+    data = jax.eval_shape(mjx.make_data, mjx.put_model(model, impl="jax"))
+    return int(data._impl.contact.dist.shape[0])
+
+
+def _max_rows(model: mujoco.MjModel, contacts: int) -> int:
+    """Constraint rows one world can have: pyramidal contacts (2 (condim - 1) rows, 1 for
+    condim 1) plus one per limited joint."""
+    condim = int(model.geom_condim.max()) if model.ngeom else 1
+    per_contact = 1 if condim == 1 else 2 * (condim - 1)
+    return max(1, contacts * per_contact + int(model.jnt_limited.sum()))
+
+
+class Physics:
+    """Steps one robot model: `init(qpos)` and `step(state, ctrl)` on one world (vmappable).
+
+    Args:
+        model: the robot's MuJoCo model.
+        backend: "jax" (MJX's JAX implementation, any device) or "warp" (MuJoCo Warp
+            through MJX: a CUDA GPU, or a CPU where warp-lang has its CPU compiler).
+    """
+
+    def __init__(self, model: mujoco.MjModel, backend: str = "jax"):
+        if backend not in BACKENDS:
+            raise ValueError(f"unknown physics backend {backend!r}; accepted: {BACKENDS}")
+        if backend == "warp" and not warp_available():
+            raise ValueError(
+                "physics='warp' needs the warp-lang package (MuJoCo Warp through MJX); it is "
+                "not importable here. Install warp-lang, or use physics='jax'"
+            )
+        self.backend = backend
+        self.mj_model = model
+        self.model = mjx.put_model(model, impl=backend)
+        if backend == "warp":
+            # Warp prints a line per world and step when a cap is hit (line-search iterations,
+            # contacts); across 65,536 worlds that floods the output. The caps still apply.
+            self.model = self.model.replace(
+                opt=self.model.opt.replace(_impl=self.model.opt._impl.replace(warn_overflow=0))
+            )
+        if backend == "jax":
+            self._template = mjx.make_data(self.model)
+            # MJX-JAX's forward skips the acceleration sensors of a model without any constraint
+            # row (the pruned Point); they are then computed here, as MuJoCo C always does.
+            no_rows = self._template._impl.efc_J.size == 0
+            self._add_sensor_acc = model.nsensor > 0 and no_rows
+        else:
+            slots = _max_contacts(model)
+            # Warp may make more contacts for a pair than MJX-JAX's slots (plane-cylinder: up to
+            # 4, not 3); the buffer is shared by all worlds, so slack here is cheap.
+            self.contacts_per_world = 2 * slots
+            self.rows_per_world = _max_rows(model, slots)
+            self._template = mjx.make_data(
+                model, impl="warp", naconmax=self.contacts_per_world, njmax=self.rows_per_world
+            )
+            self._add_sensor_acc = False
+            self._worlds = {n: self._warp_worlds(n) for n in (0, SUBSTEPS)}
+
+    @property
+    def dtype(self) -> jnp.dtype:
+        return self._template.qpos.dtype
+
+    def init(self, qpos: jax.Array) -> PhysicsState:
+        """The state at rest at `qpos` ([nq]): zero velocity and control, one forward pass."""
+        zeros = jnp.zeros(self.mj_model.nv, self.dtype)
+        state = PhysicsState(
+            qpos=jnp.asarray(qpos, self.dtype),
+            qvel=zeros,
+            qacc_warmstart=zeros,
+            agent_pos=jnp.zeros(3, self.dtype),
+            agent_mat=jnp.eye(3, dtype=self.dtype),
+            sensordata=jnp.zeros(self.mj_model.nsensordata, self.dtype),
+        )
+        return self.advance(state, jnp.zeros(self.mj_model.nu, self.dtype), 0)
+
+    def step(self, state: PhysicsState, ctrl: jax.Array) -> PhysicsState:
+        """`SUBSTEPS` physics steps under `ctrl` ([nu], clipped to [-1, 1]), then the forward
+        pass that the original runs before it reads the sensors."""
+        return self.advance(state, jnp.clip(ctrl, -1.0, 1.0).astype(self.dtype), SUBSTEPS)
+
+    def advance(self, state: PhysicsState, ctrl: jax.Array, substeps: int) -> PhysicsState:
+        """`substeps` steps then a forward pass, one world (any number of `vmap`s around it)."""
+        if self.backend == "jax":
+            return self._advance(self._template, state, ctrl, substeps)
+        one = jax.tree.map(lambda x: x[None], (state, ctrl))
+        worlds = self._worlds.get(substeps) or self._warp_worlds(substeps)
+        return jax.tree.map(lambda x: x[0], worlds(*one))
+
+    def _advance(
+        self, template, state: PhysicsState, ctrl: jax.Array, substeps: int
+    ) -> PhysicsState:
+        data = template.replace(
+            qpos=state.qpos, qvel=state.qvel, qacc_warmstart=state.qacc_warmstart, ctrl=ctrl
+        )
+        data = jax.lax.fori_loop(0, substeps, lambda _, d: mjx.step(self.model, d), data)
+        data = mjx.forward(self.model, data)
+        if self._add_sensor_acc:
+            data = mjx.sensor_acc(self.model, data)
+        return PhysicsState(
+            qpos=data.qpos,
+            qvel=data.qvel,
+            qacc_warmstart=data.qacc_warmstart,
+            agent_pos=data.xpos[1],
+            agent_mat=data.xmat[1],
+            sensordata=data.sensordata,
+        )
+
+    def _warp_template(self, num_worlds: int):
+        """The Warp data template with a contact buffer for `num_worlds` worlds."""
+        impl = self._template._impl
+        tiled = {
+            f.name: jnp.tile(
+                getattr(impl, f.name), (num_worlds,) + (1,) * (getattr(impl, f.name).ndim - 1)
+            )
+            for f in type(impl).fields()
+            if f.name.startswith("contact__")
+            and getattr(impl, f.name).shape[:1] == (impl.naconmax,)
+        }
+        naconmax = num_worlds * impl.naconmax
+        impl = impl.replace(
+            naconmax=naconmax, naccdmax=min(impl.naccdmax * num_worlds, naconmax), **tiled
+        )
+        return self._template.replace(_impl=impl)
+
+    def _warp_worlds(self, substeps: int):
+        """`worlds(state, ctrl)` over a leading axis of W worlds, with a batching rule that
+        folds every enclosing `vmap` into that axis."""
+
+        @jax.custom_batching.custom_vmap
+        def worlds(state, ctrl):
+            template = self._warp_template(ctrl.shape[0])
+            return jax.vmap(lambda s, c: self._advance(template, s, c, substeps))(state, ctrl)
+
+        @worlds.def_vmap
+        def worlds_batched(axis_size, in_batched, state, ctrl):
+            args = jax.tree.map(
+                lambda x, b: x if b else jnp.broadcast_to(x, (axis_size,) + x.shape),
+                (state, ctrl),
+                tuple(in_batched),
+            )
+            flat = jax.tree.map(lambda x: x.reshape((-1,) + x.shape[2:]), args)
+            out = worlds(*flat)
+            out = jax.tree.map(lambda x: x.reshape((axis_size, -1) + x.shape[1:]), out)
+            return out, jax.tree.map(lambda _: True, out)
+
+        return worlds
+
+
+__all__ = ["BACKENDS", "SUBSTEPS", "Physics", "PhysicsState", "warp_available"]
