@@ -173,3 +173,14 @@ def test_epsilon_slot_chooses_among_several_epsilon_edges():
         _, state, _, _, _, info = jax.jit(task.step_task)(
             jax.random.key(0), state, RIGHT, None, jnp.int32(slot))
         assert bool(info["epsilon"]) and int(state.q) == targets[slot]
+
+
+def test_epsilon_slot_past_the_last_is_a_world_step(task):
+    """A slot the state lacks (here past the only one) is ignored: the world steps, q follows
+    the label, as the automaton step does."""
+    step_task = jax.jit(task.step_task)
+    state = start(task, 2)
+    _, moved, _, _, _, info = step_task(jax.random.key(3), state, jnp.int32(RIGHT), PARAMS,
+                                        jnp.int32(state.spec.epsilon.shape[-1]))
+    assert not bool(info["epsilon"]) and int(moved.env_state.time) == 1
+    assert np.array_equal(np.asarray(moved.env_state.agent), [0, 1]) and int(moved.q) == 0

@@ -50,6 +50,7 @@ def epsilon_slot(take_epsilon: jax.Array | bool | int) -> jax.Array:
 
 
 UNROLL_MAX_SYMBOLS = 64
+CODE_MAX_PROPS = 30  # labels as int32 codes; wider labels are compared bit by bit
 
 
 def _code(bits: jax.Array) -> jax.Array:
@@ -67,7 +68,7 @@ def _column(alphabet: jax.Array, symbol_of_code: jax.Array, num_slots: int, prop
     if symbol_of_code.shape[-1] == 1 << num_props:
         # a gather fuses with the env's own kernels; a search over the alphabet adds its own
         symbol = symbol_of_code[_code(props)].astype(jnp.int32)
-    elif num_symbols <= UNROLL_MAX_SYMBOLS:
+    elif num_symbols <= UNROLL_MAX_SYMBOLS and num_props <= CODE_MAX_PROPS:
         code, codes = _code(props), _code(alphabet)
         symbol = jnp.int32(num_symbols)
         for a in range(num_symbols):

@@ -162,3 +162,16 @@ def test_step_table_agrees_with_the_automaton_tables(monkeypatch, lookup):
     np.testing.assert_array_equal(got[1], want_acc)
     np.testing.assert_array_equal(got[2], success[want_q])
     np.testing.assert_array_equal(got[3], violation[want_q])
+
+
+def test_labels_wider_than_an_int32_code():
+    """33 propositions: no code table, too wide for integer codes; the empty label, a single
+    proposition and one past bit 31 each read their own symbol."""
+    props = tuple(f"p{i}" for i in range(33))
+    spec = compile_spec("!p32 U p1", props, zero_or_one(33))
+    assert spec.symbol_of_code.shape == (0,)
+    labels = np.zeros((3, 33), bool)
+    labels[1, 1] = labels[2, 32] = True
+    q, _, success, violation = jax.vmap(step, (None, None, 0, None))(spec, spec.init, labels, False)
+    assert not bool(success[0]) and not bool(violation[0]) and int(q[0]) == int(spec.init)
+    assert bool(success[1]) and bool(violation[2])
