@@ -6,6 +6,7 @@ whether the policy gave it up (aborted). From it, per seed and spec:
 
 - `eta_s`: fraction of episodes that succeed; `eta_v`: fraction that violate;
   `eta_o = 1 - eta_s - eta_v` (timeouts, the world's own terminations, aborted episodes);
+  `eta_a`: fraction the policy gave up (aborted; part of `eta_o`; the reference's unreachable rate);
 - `mu`: mean steps to success, over successful episodes only (NaN if there is none);
 - `mu_acc`: mean accepting visits over non-violating, non-aborted episodes only (NaN if there is
   none), the infinite-horizon metric (GenZ-LTL's protocol, see the reference notes).
@@ -24,7 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-METRICS = ("eta_s", "eta_v", "eta_o", "mu", "mu_acc")
+METRICS = ("eta_s", "eta_v", "eta_o", "eta_a", "mu", "mu_acc")
 
 
 class EpisodeTable(NamedTuple):
@@ -78,6 +79,7 @@ def per_seed_metrics(table: EpisodeTable) -> dict[str, np.ndarray]:
         "eta_s": eta_s,
         "eta_v": eta_v,
         "eta_o": 1.0 - eta_s - eta_v,
+        "eta_a": aborted.mean(axis=-1),
         "mu": _masked_mean(np.asarray(table.steps), success),
         "mu_acc": _masked_mean(np.asarray(table.num_accepting), ~violation & ~aborted),
     }

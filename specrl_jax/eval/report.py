@@ -2,8 +2,9 @@
 
 A report is built from `SuiteResult`s, one per (env, suite, method). Tables have one row per
 env x suite and, per method, the columns of the paper: `eta_s`, `eta_v`, `mu` for finite-horizon
-suites and `mu_acc`, `eta_v` for infinite-horizon ones, each as `mean±std` over seeds ("-"
-where no episode qualified, e.g. `mu` without any success).
+suites and `mu_acc`, `eta_v` for infinite-horizon ones, then the abort rate `eta_a` (episodes the
+policy gave up, as the GenZ-LTL reference prints its unreachable count), each as `mean±std` over
+seeds ("-" where no episode qualified, e.g. `mu` without any success).
 """
 
 from __future__ import annotations
@@ -23,8 +24,8 @@ import numpy as np
 from specrl_jax.eval.evaluate import EvalResult
 from specrl_jax.eval.metrics import METRICS, format_mean_std
 
-FINITE_COLUMNS = ("eta_s", "eta_v", "mu")
-INFINITE_COLUMNS = ("mu_acc", "eta_v")
+FINITE_COLUMNS = ("eta_s", "eta_v", "mu", "eta_a")
+INFINITE_COLUMNS = ("mu_acc", "eta_v", "eta_a")
 COMPLEXITY = re.compile(r"(reach_only|reach_avoid)/seq(\d+)_disj(\d+)$")
 
 

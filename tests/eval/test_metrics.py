@@ -20,6 +20,20 @@ def test_rates_and_steps_over_successful_episodes_only():
     assert m["eta_v"][0, 0] == pytest.approx(0.2)
     assert m["eta_o"][0, 0] == pytest.approx(0.4)
     assert m["mu"][0, 0] == pytest.approx(6.0)
+    assert m["eta_a"][0, 0] == 0.0  # no aborted field: nothing was given up
+
+
+def test_abort_rate_counts_given_up_episodes_within_other():
+    # 4 episodes: success, violation, aborted, timeout; 2 seeds, the second aborts twice
+    success = np.array([[[1, 0, 0, 0]], [[1, 0, 0, 0]]], bool)
+    violation = np.array([[[0, 1, 0, 0]], [[0, 0, 0, 0]]], bool)
+    aborted = np.array([[[0, 0, 1, 0]], [[0, 1, 1, 0]]], bool)
+    steps = np.full(success.shape, 75)
+    m = per_seed_metrics(EpisodeTable(success, violation, steps, np.zeros_like(steps), aborted))
+    np.testing.assert_allclose(m["eta_a"], [[0.25], [0.5]])
+    np.testing.assert_allclose(m["eta_o"], [[0.5], [0.75]])  # aborts are part of the other outcomes
+    s = summarize(m)["specs"]["0"]
+    assert s["eta_a_mean"] == pytest.approx(0.375) and s["eta_a_std"] == pytest.approx(0.125)
 
 
 def test_accepting_visits_over_non_violating_episodes_only():

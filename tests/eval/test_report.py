@@ -15,16 +15,18 @@ from specrl_jax.eval.report import (
 )
 
 
-def result(success, violation, steps, accepting, finite=True) -> EvalResult:
+def result(success, violation, steps, accepting, finite=True, aborted=None) -> EvalResult:
     """Fields [seeds=2, specs=1, episodes=2] from [seed][episode] lists."""
     fields = [np.asarray(x)[:, None, :] for x in (success, violation, steps, accepting)]
+    gave_up = None if aborted is None else np.asarray(aborted, bool)[:, None, :]
     return EvalResult("Tiny-v0", ("F a",), np.array([finite]), (1, 2), 2, 75,
-                      EpisodeTable(fields[0].astype(bool), fields[1].astype(bool), *fields[2:]))
+                      EpisodeTable(fields[0].astype(bool), fields[1].astype(bool), *fields[2:], gave_up))
 
 
 GOOD = result([[1, 1], [1, 0]], [[0, 0], [0, 1]], [[4, 6], [8, 3]], [[0, 0], [0, 0]])
 NEVER = result([[0, 0], [0, 0]], [[1, 0], [0, 0]], [[2, 75], [75, 75]], [[0, 0], [0, 0]])
-LOOPS = result([[0, 0], [0, 0]], [[0, 1], [0, 0]], [[75] * 2] * 2, [[4, 9], [2, 6]], finite=False)
+LOOPS = result([[0, 0], [0, 0]], [[0, 1], [0, 0]], [[75] * 2] * 2, [[4, 9], [2, 6]], finite=False,
+               aborted=[[0, 0], [0, 1]])
 
 
 def test_markdown_rows_env_by_suite_and_columns_method_by_metric():
@@ -33,12 +35,14 @@ def test_markdown_rows_env_by_suite_and_columns_method_by_metric():
                SuiteResult("Tiny-v0", "infinite/b", "random", LOOPS)]
     finite, infinite = markdown_tables(results).strip().split("\n\n")
     assert finite.splitlines() == [
-        ("| env | suite | oracle eta_s | oracle eta_v | oracle mu | random eta_s | random eta_v "
-         "| random mu |"),
-        "|---|---|---|---|---|---|---|---|",
-        "| Tiny-v0 | finite/a | 0.75±0.25 | 0.25±0.25 | 6.50±1.50 | 0.00±0.00 | 0.25±0.25 | - |",
+        ("| env | suite | oracle eta_s | oracle eta_v | oracle mu | oracle eta_a | random eta_s "
+         "| random eta_v | random mu | random eta_a |"),
+        "|---|---|---|---|---|---|---|---|---|---|",
+        ("| Tiny-v0 | finite/a | 0.75±0.25 | 0.25±0.25 | 6.50±1.50 | 0.00±0.00 | 0.00±0.00 "
+         "| 0.25±0.25 | - | 0.00±0.00 |"),
     ]
-    assert infinite.splitlines()[2] == "| Tiny-v0 | infinite/b | 4.00±0.00 | 0.25±0.25 |"
+    # seed 2 gave its second episode up: abort rate 0.5 there, and mu_acc averages seed 2's first only
+    assert infinite.splitlines()[2] == "| Tiny-v0 | infinite/b | 3.00±1.00 | 0.25±0.25 | 0.25±0.25 |"
 
 
 def test_json_holds_config_versions_tables_and_null_for_nan(tmp_path):
@@ -51,6 +55,7 @@ def test_json_holds_config_versions_tables_and_null_for_nan(tmp_path):
     assert entry["seeds"] == [1, 2] and entry["episodes"]["steps"] == [[[2, 75]], [[75, 75]]]
     assert entry["summary"]["groups"]["s"]["mu_mean"] is None
     assert entry["summary"]["groups"]["s"]["eta_v_mean"] == 0.25
+    assert entry["per_seed"]["eta_a"] == [[0.0], [0.0]]
 
 
 def test_plots_are_written(tmp_path):
