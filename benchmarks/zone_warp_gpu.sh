@@ -19,6 +19,14 @@ if [ "${1:-1}" = 1 ]; then
   measure 80 benchmarks/zone_physics.py --physics warp --robots Car Ant --steps 30 --seeds 2
   measure 60 benchmarks/env_throughput.py --envs PointLTL0-v0 --physics warp --batches 262144 --resets exact --steps 20 --repeats 2
   measure 60 benchmarks/env_throughput.py --envs AntLTL0-v0 --physics warp --batches 262144 --resets exact --steps 10 --repeats 2
+elif [ "$1" = 3 ]; then  # third session: line-search cap 4 (C: no change, see RESULTS.md), physics only
+  measure 80 benchmarks/zone_physics.py --robots Car --steps 0 --batches 65536 --bench-steps 10
+  measure 80 benchmarks/zone_physics.py --robots Car --steps 0 --batches 65536 --bench-steps 10 --solver 10 4 6
+  measure 100 benchmarks/zone_physics.py --robots Ant --steps 0 --batches 16384 --bench-steps 5
+  measure 100 benchmarks/zone_physics.py --robots Ant --steps 0 --batches 16384 --bench-steps 5 --solver 8 4 6
+  measure 50 benchmarks/zone_physics.py --physics warp --robots Car --steps 0 --batches 65536 --bench-steps 10 --solver 10 4 6
+  measure 50 benchmarks/zone_physics.py --physics warp --robots Ant --steps 0 --batches 65536 --bench-steps 10 --solver 8 4 6
+  measure 60 benchmarks/zone_physics.py --physics warp --robots Car Ant --steps 0 --batches 65536 --bench-steps 10
 else  # second session: layout banks (MJX-JAX), and the Warp rows the first one missed
   measure 200 benchmarks/env_throughput.py --envs PointLTL2-v0 PointLTL1-v0 PointLTL0-v0 --resets bank --batches 65536 262144 --steps 20 --repeats 2 --bank-size 65536
   measure 150 benchmarks/env_throughput.py --envs AntLTL0-v0 --physics warp --batches 262144 --resets exact --steps 10 --repeats 2
