@@ -73,6 +73,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         "complete": int(runner.update[0]) >= config.num_updates,
         "setup_s": setup,  # env and map bank, before training
         "wall_s_this_session": wall,
+        # every session's steps over every session's training time (rows' clock spans resumes)
         "env_steps_per_s": rows[-1]["env_steps"] * num_seeds / rows[-1]["wall_s"] if rows else 0.0,
         "final_success_rate": rows[-1].get("success_rate") if rows else None,
         "time_to_success": time_to_levels(rows),
@@ -148,8 +149,10 @@ def load_params(method: str, env_id: str, path: str | Path, num_seeds: int) -> A
     """Read `params.msgpack` written by `train` (leading seed axis)."""
     world, env_params = make(env_id)
     method_obj = method_module(method).make_method(world, env_params)
-    obs, _ = method_obj.env.reset(jax.random.key(0), method_obj.init_task_params())
-    one = method_obj.network.init(jax.random.key(0), jax.tree.map(lambda x: x[None], obs))
+    # shapes only: running the env's reset and the network's init eagerly takes seconds on a CPU
+    obs, _ = jax.eval_shape(method_obj.env.reset, jax.random.key(0), method_obj.init_task_params())
+    one_obs = jax.tree.map(lambda x: jax.ShapeDtypeStruct((1, *x.shape), x.dtype), obs)
+    one = jax.eval_shape(method_obj.network.init, jax.random.key(0), one_obs)
     template = jax.tree.map(lambda x: np.zeros((num_seeds, *x.shape), x.dtype), one)
     return serialization.from_bytes(template, Path(path).read_bytes())
 

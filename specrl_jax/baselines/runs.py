@@ -86,7 +86,10 @@ def train_in_run_dir(
     resuming from `run_dir` when it holds a checkpoint.
 
     `summarise` derives extra scalars per update and seed (e.g. rates); `max_updates` and
-    `max_wall_s` (checked after each chunk) stop early, resumable. Returns the final runner state, with a leading seed axis `[num_seeds]`.
+    `max_wall_s` (this session's seconds, checked after each chunk) stop early, resumable. Rows'
+    `wall_s` is training time summed over sessions (a resumed run continues the clock of the
+    checkpoint's update), so rates and times to a level stay on one clock. Returns the final
+    runner state, with a leading seed axis `[num_seeds]`.
     """
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -97,9 +100,12 @@ def train_in_run_dir(
     init = jax.jit(trainer.init)
     seeds = [init(k) for k in jax.random.split(key, num_seeds)]
     runner = jax.tree.map(lambda *xs: jnp.stack(xs), *seeds)
+    wall_before = 0.0
     if (run_dir / CHECKPOINT).exists():
         runner = load_checkpoint(run_dir / CHECKPOINT, runner)
-        log(f"resumed at update {int(runner.update[0])} from {run_dir / CHECKPOINT}")
+        wall_before = _wall_at(run_dir, int(runner.update[0]))
+        log(f"resumed at update {int(runner.update[0])} from {run_dir / CHECKPOINT} "
+            f"after {wall_before:.1f}s of training")
     # One compiled chunk for every chunk: a shorter last chunk runs the same scan, partly idle.
     updates = jax.jit(_seed_batched(trainer, num_seeds), static_argnums=1, donate_argnums=0)
     total = cfg.num_updates if max_updates is None else min(cfg.num_updates, max_updates)
@@ -114,7 +120,7 @@ def train_in_run_dir(
             elapsed = time.perf_counter() - start_wall
             for i, row in enumerate(rows):
                 update = done - n + i + 1
-                row.update(update=update, env_steps=update * cfg.batch_size, wall_s=elapsed)
+                row.update(update=update, env_steps=update * cfg.batch_size, wall_s=wall_before + elapsed)
                 out.write(json.dumps(row) + "\n")
             out.flush()
             rate = (done - done_at_start) * cfg.batch_size * num_seeds / elapsed
@@ -129,6 +135,14 @@ def train_in_run_dir(
                 break
     plot_curve(run_dir)
     return runner
+
+
+def _wall_at(run_dir: Path, update: int) -> float:
+    """Training seconds of earlier sessions up to `update` (the checkpoint's): `wall_s` of the last
+    row written for it in `metrics.jsonl`; 0 without one."""
+    if not (run_dir / "metrics.jsonl").exists():
+        return 0.0
+    return next((r["wall_s"] for r in reversed(read_metrics(run_dir)) if r["update"] == update), 0.0)
 
 
 def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, float]]:

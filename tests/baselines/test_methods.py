@@ -1,5 +1,7 @@
 """GenZ-LTL and DeepLTL on LetterWorld: learning on a tiny world, observation reduction, encoder."""
 
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -136,3 +138,30 @@ def test_aborted_episodes_count_as_other_and_leave_mu_acc():
                                         for i, x in enumerate(fields))))
     assert m["eta_v"][0, 0] == 0.25 and m["eta_o"][0, 0] == 0.75
     assert m["mu_acc"][0, 0] == 5.0  # (6 + 4) / 2: the violating and the aborted episode are out
+
+
+def test_saved_genz_parameters_from_before_the_matmul_cnn_give_the_same_network(monkeypatch):
+    # the committed seed was trained and saved while LetterCNN used nn.Conv (before 46aa3f8)
+    import flax.linen as nn
+
+    from specrl_jax.baselines import experiment
+
+    path = Path(specrl_jax.__file__).parents[1] / "benchmarks/results/letter_genz_params_seed1.msgpack"
+    params = jax.tree.map(lambda x: x[0], experiment.load_params("genz", "LetterLTL0-v0", path, 1))
+    images = jax.random.choice(jax.random.key(3), jnp.array([0.0, 0.2, 0.5, 1.0]), (16, 7, 7, 1))
+    current = genz.GenZNetwork().apply(params, images)
+
+    class LetterCNN(nn.Module):  # the same name, so the same parameter path `LetterCNN_0/Conv_i`
+        @nn.compact
+        def __call__(self, image):
+            x = image.astype(jnp.float32)
+            for width in (16, 32, 64):
+                x = nn.relu(nn.Conv(width, (2, 2), padding="VALID")(x))
+            return x.reshape(*x.shape[:-3], -1)
+
+    monkeypatch.setattr(genz, "LetterCNN", LetterCNN)
+    library = genz.GenZNetwork().apply(params, images)
+    assert float(jnp.std(library.value)) > 1e-3  # trained weights, not a zero template
+    for a, b in ((current.pi.logits, library.pi.logits), (current.value, library.value),
+                 (current.cost_value, library.cost_value), (current.multiplier, library.multiplier)):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)

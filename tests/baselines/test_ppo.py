@@ -6,6 +6,7 @@ import subprocess
 import sys
 import textwrap
 from pathlib import Path
+from types import SimpleNamespace
 
 import jax
 import jax.numpy as jnp
@@ -28,6 +29,9 @@ sys.path.insert(0, str(Path(__file__).parent))
 from chain import ChainMethod
 
 TINY = PPOConfig(num_envs=4, num_steps=8, total_timesteps=4 * 8 * 4, update_epochs=2, num_minibatches=2)
+# the KL stop fires at different epochs per seed and update (1-6 of 6); 5 updates
+KL_FIRES = PPOConfig(num_envs=4, num_steps=8, total_timesteps=4 * 8 * 5, update_epochs=6, num_minibatches=2,
+                     loss="rco", target_kl=1e-5, lr=0.03)
 
 
 def test_gae_matches_hand_computation():
@@ -159,6 +163,34 @@ def test_partly_active_chunks_continue_like_a_full_chunk():
     np.testing.assert_array_equal(rewards, m_full["reward"])
 
 
+def test_two_seeds_with_an_idle_tail_and_kl_stops_run_only_the_active_epochs(tmp_path):
+    # chunks of 3 over 5 updates: the second chunk runs 2 updates and idles the third
+    trainer = make_train(KL_FIRES, ChainMethod())
+    runner = runs.train_in_run_dir(trainer, jax.random.key(11), tmp_path, chunk_updates=3, num_seeds=2,
+                                   log=lambda s: None)
+    rows = runs.read_metrics(tmp_path)
+    assert [r["update"] for r in rows] == [1, 2, 3, 4, 5] and list(runner.update) == [5, 5]
+    epochs = np.array([r["epochs"] for r in rows])  # mean over the 2 seeds
+    assert epochs.min() < KL_FIRES.update_epochs  # the KL stop fired
+    adam_steps = np.asarray(runner.opt_state[1][0].count)  # one per minibatch step, per seed
+    assert adam_steps.sum() == KL_FIRES.num_minibatches * 2 * epochs.sum()  # idle updates took none
+
+
+def test_one_seed_unbatched_matches_the_vmapped_trainer(tmp_path):
+    # `runs` trains one seed without vmap; the KL stop's while-loop must give the same run
+    trainer = make_train(KL_FIRES, ChainMethod())
+    key = jax.random.key(11)
+    runner = runs.train_in_run_dir(trainer, key, tmp_path, chunk_updates=3, log=lambda s: None)
+    init = jax.tree.map(lambda x: x[None], jax.jit(trainer.init)(jax.random.split(key, 1)[0]))
+    vmapped = jax.jit(jax.vmap(trainer.updates, in_axes=(0, None)), static_argnums=1)
+    batched, metrics = vmapped(init, KL_FIRES.num_updates)
+    epochs = [r["epochs"] for r in runs.read_metrics(tmp_path)]
+    assert epochs == np.asarray(metrics["epochs"][0], float).tolist() and min(epochs) < 6
+    for a, b in zip(jax.tree.leaves(batched.params), jax.tree.leaves(runner.params)):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(jax.random.key_data(batched.key), jax.random.key_data(runner.key))
+
+
 def test_letter_cnn_matches_the_library_convolution():
     import flax.linen as nn
 
@@ -179,7 +211,9 @@ def test_letter_cnn_matches_the_library_convolution():
     np.testing.assert_allclose(out, reference(params, image), rtol=1e-5, atol=1e-6)
 
 
-def test_resume_gives_identical_continuation(tmp_path):
+def test_resume_gives_identical_continuation(tmp_path, monkeypatch):
+    clock = iter(range(1000))  # every chunk takes 1 s: a resumed run's clock must read as a straight one's
+    monkeypatch.setattr(runs, "time", SimpleNamespace(perf_counter=lambda: float(next(clock))))
     trainer = make_train(TINY, ChainMethod())
     key = jax.random.key(3)
     options = {"chunk_updates": 2, "num_seeds": 2, "log": lambda s: None}
@@ -192,6 +226,7 @@ def test_resume_gives_identical_continuation(tmp_path):
     rows_a, rows_b = runs.read_metrics(tmp_path / "a"), runs.read_metrics(tmp_path / "b")
     assert [r["update"] for r in rows_b] == [1, 2, 3, 4]
     assert [r["reward"] for r in rows_a] == [r["reward"] for r in rows_b]
+    assert [r["wall_s"] for r in rows_a] == [r["wall_s"] for r in rows_b] == [1.0, 1.0, 2.0, 2.0]
     assert json.loads((tmp_path / "a" / "config.json").read_text())["ppo"]["num_envs"] == 4
 
 
@@ -222,13 +257,3 @@ def test_sharded_and_unsharded_runs_agree():
     code = SHARDED.format(here=str(Path(__file__).parent))
     proc = subprocess.run([sys.executable, "-c", code], check=False, env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0 and "OK" in proc.stdout, proc.stderr[-3000:]
-
-
-def test_one_seed_run_dir_trains_like_the_plain_trainer(tmp_path):
-    trainer = make_train(TINY, ChainMethod())
-    key = jax.random.key(9)
-    runner = runs.train_in_run_dir(trainer, key, tmp_path, chunk_updates=3, log=lambda s: None)
-    plain, _ = jax.jit(trainer)(jax.random.split(key, 1)[0])
-    assert runner.update.shape == (1,) and int(runner.update[0]) == TINY.num_updates
-    for a, b in zip(jax.tree.leaves(plain.params), jax.tree.leaves(runner.params)):
-        np.testing.assert_allclose(a, b[0], rtol=1e-5, atol=1e-6)
