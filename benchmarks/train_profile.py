@@ -1,6 +1,6 @@
 """Where one LetterWorld training run spends its time: compilation, rollout (collect + advantages)
-per update, one epoch of minibatch updates, the network's forward/backward alone, and the epochs the
-KL stop leaves per update. Writes a JSON of the timings.
+per update, one epoch of minibatch updates, the CNN's forward/backward alone (`nn.Conv` against the
+LetterCNN's matmul), and the epochs the KL stop leaves per update. Writes a JSON of the timings.
 
 Example (GPU):
     python benchmarks/train_profile.py --method genz --out /tmp/profile.json
@@ -14,12 +14,14 @@ import json
 import time
 from pathlib import Path
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from specrl_jax.baselines import experiment
+from specrl_jax.baselines import experiment, runs
 from specrl_jax.baselines.ppo import losses, make_train, rollout
+from specrl_jax.baselines.ppo.networks import LetterCNN
 
 
 def timed(fn, *args, repeats: int = 3) -> tuple[float, float]:
@@ -54,30 +56,29 @@ def collect_batch(trainer, runner):
     return runner.replace(env_state=env_state, obs=obs, key=jax.random.split(runner.key)[0]), batch
 
 
-def conv2x2_patches(params: dict, image: jax.Array) -> jax.Array:
-    """`LetterCNN` with the same parameters, each 2x2 VALID convolution as one matmul over the
-    four shifted views (a candidate replacement for the library convolution)."""
-    x = image.astype(jnp.float32)
-    for i in range(3):
-        layer = params[f"Conv_{i}"]
-        patches = jnp.concatenate(
-            [x[..., :-1, :-1, :], x[..., :-1, 1:, :], x[..., 1:, :-1, :], x[..., 1:, 1:, :]], axis=-1
-        )
-        kernel = layer["kernel"].reshape(-1, layer["kernel"].shape[-1])
-        x = jax.nn.relu(patches @ kernel + layer["bias"])
-    return x.reshape(*x.shape[:-3], -1)
+class LibraryConvCNN(nn.Module):
+    """The LetterCNN's architecture with the library convolution (`nn.Conv`, 2x2 VALID): the
+    reference for `LetterCNN`'s shifted-view matmul. Same parameter tree, so both run on one set."""
+
+    channels: tuple[int, ...] = (16, 32, 64)
+
+    @nn.compact
+    def __call__(self, image: jax.Array) -> jax.Array:
+        x = image.astype(jnp.float32)
+        for width in self.channels:
+            x = nn.relu(nn.Conv(width, (2, 2), padding="VALID")(x))
+        return x.reshape(*x.shape[:-3], -1)
 
 
 def cnn_timings(obs: jax.Array) -> dict[str, float]:
-    """Forward + backward of the LetterCNN on `obs` [N, V, V, C], library conv vs patches."""
-    from specrl_jax.baselines.ppo.networks import LetterCNN
-
+    """Forward + backward (s) on `obs` [N, V, V, C]: `nn.Conv` vs the LetterCNN in use (`Conv2x2`)."""
     cnn = LetterCNN()
     params = cnn.init(jax.random.key(0), obs[:1])
-    direct = lambda p: cnn.apply(p, obs)
-    patched = lambda p: conv2x2_patches(p["params"], obs)
-    out = {"max_abs_diff": float(jnp.max(jnp.abs(jax.jit(direct)(params) - jax.jit(patched)(params))))}
-    for name, fn in (("flax_conv", direct), ("patches", patched)):
+    library = lambda p: LibraryConvCNN(tuple(cnn.channels)).apply(p, obs)
+    matmul = lambda p: cnn.apply(p, obs)
+    out = {"max_abs_diff": float(jnp.max(jnp.abs(jax.jit(library)(params) - jax.jit(matmul)(params)))),
+           "images": int(obs.shape[0])}
+    for name, fn in (("nn_conv", library), ("conv2x2_matmul", matmul)):
         @jax.jit
         def loop(p, fn=fn):
             def body(q, _):
@@ -150,15 +151,17 @@ def main() -> None:
             report[f"cnn_fwd_bwd_s_{num_mb}"] = cnn_timings(minibatch.obs)
         print(json.dumps(report), flush=True)
 
-    # TRAINING CHUNKS: the trainer's own update (KL stop), as `runs` calls it (vmap over 1 seed)
-    updates = jax.jit(jax.vmap(trainer.updates, in_axes=(0, None)), static_argnums=1)
+    # TRAINING CHUNKS: the trainer's own update (KL stop) exactly as `runs.train_in_run_dir` calls
+    # it for one seed: unbatched inside a seed axis of 1, with the `active` count of a partly idle chunk
+    updates = jax.jit(runs._seed_batched(trainer, 1), static_argnums=1, donate_argnums=0)
     seeds = jax.tree.map(lambda x: x[None], runner)
+    active = jnp.int32(args.chunk)
     start = time.perf_counter()
-    compiled = updates.lower(seeds, args.chunk).compile()
+    compiled = updates.lower(seeds, args.chunk, active).compile()
     report["update_chunk_compile_s"] = time.perf_counter() - start
     for i in range(3):
         start = time.perf_counter()
-        seeds, metrics = compiled(seeds)
+        seeds, metrics = compiled(seeds, active)
         epochs = np.asarray(jax.device_get(metrics["epochs"]))
         report[f"chunk{i}_s_per_update"] = (time.perf_counter() - start) / args.chunk
         report[f"chunk{i}_mean_epochs"] = float(epochs.mean())
