@@ -99,8 +99,8 @@ class Physics:
             self._add_sensor_acc = model.nsensor > 0 and no_rows
         else:
             slots = _max_contacts(model)
-            # Warp may make more contacts for a pair than MJX-JAX's slots (plane-cylinder: up to
-            # 4, not 3); the buffer is shared by all worlds, so slack here is cheap.
+            # Warp's collision functions need not make as few contacts per pair as MJX-JAX
+            # allocates slots for; the buffer is shared by all worlds, so slack here is cheap.
             self.contacts_per_world = 2 * slots
             self.rows_per_world = _max_rows(model, slots)
             self._template = mjx.make_data(
