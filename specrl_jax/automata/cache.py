@@ -19,7 +19,7 @@ import spot
 import specrl_jax
 
 #: bump when the compiled layout or the construction changes
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 
 
 def cache_dir() -> str:

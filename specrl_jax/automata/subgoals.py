@@ -9,14 +9,14 @@ Two kinds, over alphabet symbols:
 * DeepLTL's candidate sequences: the depth-first search of the reference (all simple paths into
   an accepting cycle, with its containment pruning and avoid sets), loops unrolled twice for
   infinite-horizon specs and dropped for co-safe ones; epsilon steps are marked. The search is
-  memoised so that it is complete (see `_Search`); steps are stored as ids into a table of the
-  distinct (reach, avoid, epsilon slot) pairs.
+  memoised so that it is complete (see `_Search`) within a budget; start states past it fall
+  back to the shortest paths to acceptance (`candidate_sequences`). Steps are stored as ids
+  into a table of the distinct (reach, avoid, epsilon slot) pairs.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -26,7 +26,10 @@ from specrl_jax.automata.translate import Automaton
 
 NUM_LOOPS_INFINITE = 2
 MAX_PAIRS = 2**15 - 1
-SEARCH_BUDGET = 20_000  # memoised search calls per automaton (paper specs need at most 8,003)
+# limits of one search over an automaton, read when it starts; the paper's specs need at most
+# 8,003 calls and 888,808 work units
+SEARCH_BUDGET = 20_000  # memoised calls
+WORK_BUDGET = 2_000_000  # path steps built plus containment checks made
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,6 +51,9 @@ class Sequences:
         pair_reach, pair_avoid: bool[U, A] symbols to reach / avoid (reach empty for epsilon).
         pair_epsilon_slot: int32[U] epsilon edge to take, -1 if not an epsilon step.
         length: int32[S, C] steps of each sequence; valid: bool[S, C].
+        complete: bool[S] the state's candidates are the complete search's (True where no
+            search runs: dead and, for co-safe specs, success states).
+        dropped: int32[S] candidates dropped by `max_length` / `max_sequences`.
     """
 
     pair: np.ndarray
@@ -56,6 +62,8 @@ class Sequences:
     pair_epsilon_slot: np.ndarray
     length: np.ndarray
     valid: np.ndarray
+    complete: np.ndarray
+    dropped: np.ndarray
 
 
 def one_step_subgoals(aut: Automaton) -> Subgoals:
@@ -129,12 +137,13 @@ def _contained(longer: tuple, shorter: tuple) -> bool:
     return False
 
 
-def _prune(paths: list[_Path]) -> list[_Path]:
+def _prune(paths: list[_Path], charge=lambda checks: None) -> list[_Path]:
     """Drop every path into which a strictly shorter one embeds (`_contained`).
 
     This is the reference's pairwise pruning. Embedding is transitive, so the paths it keeps
     are exactly those that no strictly shorter path embeds into, and checking against the
-    shorter paths kept is enough. The order of the kept paths is the input order.
+    shorter paths kept is enough. The order of the kept paths is the input order. `charge` is
+    told the number of checks before they are made (it may raise to stop).
     """
     if len(paths) < 2:
         return paths
@@ -147,6 +156,7 @@ def _prune(paths: list[_Path]) -> list[_Path]:
         if len(reach) != length:
             shorter += same
             same, length = {}, len(reach)
+        charge(len(shorter))
         if not any(_contained(reach, o) for o in shorter):
             keep[i] = True
             same[reach] = None
@@ -161,7 +171,7 @@ def _bits(mask: int):
 
 
 class _OverBudget(Exception):
-    """The search needed more than its budget of memoised calls."""
+    """The search needed more than its budget of memoised calls or work."""
 
 
 def _shortest_only(aut: Automaton, out: list[list[_Transition]]) -> list[list[_Transition]]:
@@ -188,14 +198,19 @@ class _Search:
     cycle closes only inside an SCC) and, among those, the ones at or before the latest
     accepting transition (a closed cycle is accepting iff it contains that transition). So
     calls agreeing on (q, those states, those before the accepting transition) return the same
-    paths: each is computed once and shared by every start state. Sets are bit masks.
+    paths: each is computed once and shared by every start state. Sets are bit masks. Calls
+    run on an explicit stack, so path length is not bounded by Python's recursion limit.
 
-    The number of distinct calls can still grow exponentially with the size of an SCC (long
-    reach-avoid chains); past `budget` calls `_OverBudget` is raised. With `shortest`, the
-    search runs over `_shortest_only`'s transitions, where every cycle is accepting.
+    The number of distinct calls, and of paths, can still grow exponentially (long reach-avoid
+    chains, conjunctions of many `F`s); `_OverBudget` is raised once the search as a whole
+    has made over `budget` calls or `work_budget` units of work (path steps built plus
+    containment checks), both read from the module at construction unless given. With
+    `shortest`, the search runs over `_shortest_only`'s transitions, where every cycle is
+    accepting; with `cap`, each call keeps only its `cap` shortest paths.
     """
 
-    def __init__(self, aut: Automaton, budget: int = SEARCH_BUDGET, shortest: bool = False):
+    def __init__(self, aut: Automaton, shortest: bool = False, cap: int | None = None,
+                 budget: int | None = None, work_budget: int | None = None):
         self.out = [_transitions(aut, q) for q in range(aut.num_states)]
         if shortest:
             self.out = _shortest_only(aut, self.out)
@@ -207,11 +222,36 @@ class _Search:
         self.succ = [_mask({t.target for t in out if not t.dead}) & self.scc[q]
                      for q, out in enumerate(self.out)]
         self.memo: dict[tuple, tuple[_Path, ...]] = {}
-        self.budget = budget
+        self.cap = cap
+        self.budget = SEARCH_BUDGET if budget is None else budget
+        self.work_budget = WORK_BUDGET if work_budget is None else work_budget
+        self.calls = self.work = 0
 
     def paths(self, q: int) -> tuple[_Path, ...]:
-        """All pruned paths from q into an accepting cycle, avoid sets attached."""
-        return self._dfs(q, 0, 0)
+        """All pruned paths from q into an accepting cycle, avoid sets attached.
+
+        Raises `_OverBudget` when the budget runs out; what earlier start states returned is
+        complete, and a later start state may still be served from the memo.
+        """
+        key = self._key(q, 0, 0)
+        result = self.memo.get(key)
+        stack = [] if result is not None else [self._call(*key)]
+        while stack:
+            try:
+                child = stack[-1].send(result)
+            except StopIteration as done:
+                stack.pop()
+                result = done.value
+            else:
+                result = self.memo.get(child)
+                if result is None:
+                    stack.append(self._call(*child))
+        return result
+
+    def _charge(self, work: int) -> None:
+        self.work += work
+        if self.work > self.work_budget:
+            raise _OverBudget
 
     def _touched(self, q: int, above: int) -> int:
         """The states of `above` that the search from q can run into: successors of the states
@@ -228,16 +268,19 @@ class _Search:
             seen |= frontier
         return touched & above
 
-    def _dfs(self, q: int, above: int, before_acc: int) -> tuple[_Path, ...]:
-        """Paths from q, given the states of q's SCC above it on the path (`above`) and those
-        of them at or before the latest accepting transition (`before_acc`)."""
+    def _key(self, q: int, above: int, before_acc: int) -> tuple[int, int, int]:
+        """The memo key of the call at q, given the states of q's SCC above it on the path
+        (`above`) and those of them at or before the latest accepting transition."""
         if above:
             above = self._touched(q, above)
             before_acc &= above
-        key = (q, above, before_acc)
-        if key in self.memo:
-            return self.memo[key]
-        if len(self.memo) >= self.budget:
+        return q, above, before_acc
+
+    def _call(self, q: int, above: int, before_acc: int):
+        """One call of the reference's search, as a generator: it yields the key of every call
+        it makes, is sent that call's paths, and returns (and memoises) its own."""
+        self.calls += 1
+        if self.calls > self.budget:
             raise _OverBudget
         on_path = above | 1 << q
         neg, paths = 0, []
@@ -247,62 +290,111 @@ class _Search:
                 continue
             bit = 1 << t.target
             if bit & on_path:
-                # accepting flags only sit on SCC-internal transitions (translate._finalize)
+                # t closes a cycle inside q's SCC, so its own accepting flag counts (the
+                # reference's `stays_in_scc`); flags on transitions that leave an SCC (a
+                # co-safe spec's transitions into its success state) are masked by `& scc`
                 if t.accepting or bit & before_acc:
                     paths.append(_Path((t.symbols,), ((t, 0),), t.target))
                 elif t.source != t.target:
                     neg |= t.symbols
                 continue
             scc = self.scc[t.target]
-            futures = self._dfs(t.target, on_path & scc,
-                                (on_path if t.accepting else before_acc) & scc)
+            futures = yield self._key(t.target, on_path & scc,
+                                      (on_path if t.accepting else before_acc) & scc)
             if not futures:
                 neg |= t.symbols
+            self._charge(sum(len(f.reach) for f in futures) + len(futures))
             paths += [_Path((t.symbols,) + f.reach, ((t, 0),) + f.steps, f.loop_state)
                       for f in futures]
+        kept = _prune(paths, self._charge)
+        if self.cap is not None and len(kept) > self.cap:
+            shortest = sorted(range(len(kept)), key=lambda i: len(kept[i].reach))[: self.cap]
+            kept = [kept[i] for i in sorted(shortest)]
         result = tuple(_Path(p.reach, ((p.steps[0][0], neg),) + p.steps[1:], p.loop_state)
-                       for p in _prune(paths))
-        self.memo[key] = result
+                       for p in kept)
+        self.memo[q, above, before_acc] = result
         return result
 
 
+def _first_path(out: list[list[_Transition]], q: int) -> _Path:
+    """The walk from q taking the first live transition of `out` (`_shortest_only`'s) at every
+    state, up to its first repeated state: a simple path into a cycle, and the cycle is
+    accepting (a walk that only shortens the distance to acceptance cannot close one)."""
+    seen, steps = set(), []
+    while q not in seen:
+        seen.add(q)
+        neg = 0
+        for d in out[q]:
+            if d.dead:
+                neg |= d.symbols
+        t = next(t for t in out[q] if not t.dead)
+        steps.append((t, neg))
+        q = t.target
+    return _Path(tuple(t.symbols for t, _ in steps), tuple(steps), q)
+
+
+def _all_paths(aut: Automaton, starts: list[int], cap: int) -> tuple[dict, list[int]]:
+    """Paths from every start state, and the start states the complete search did not serve.
+
+    Those get the paths of the shortest-path search (`cap` per call), and where that too is
+    over budget, the single `_first_path`. Later states go first: their calls are shared by
+    the earlier ones (the initial state last), so as many states as possible stay complete.
+    """
+    found, left, incomplete = {}, list(reversed(starts)), []
+    for level, make in enumerate((lambda: _Search(aut),
+                                  lambda: _Search(aut, shortest=True, cap=cap))):
+        if not left:
+            break
+        search, pending, left = make(), left, []
+        for q in pending:
+            try:
+                found[q] = search.paths(q)
+            except _OverBudget:
+                left.append(q)
+        if level == 0:
+            incomplete = left
+    if left:
+        out = _shortest_only(aut, [_transitions(aut, q) for q in range(aut.num_states)])
+        found.update((q, (_first_path(out, q),)) for q in left)
+    return found, incomplete
+
+
+def _loop_index(path: _Path) -> int:
+    return next(i for i, (t, _) in enumerate(path.steps) if t.source == path.loop_state)
+
+
+def _sequence_length(path: _Path, num_loops: int) -> int:
+    loop_index = _loop_index(path)
+    return loop_index + (len(path.steps) - loop_index) * num_loops
+
+
 def _to_sequence(path: _Path, num_loops: int) -> list[tuple[_Transition, int]]:
-    loop_index = next(i for i, (t, _) in enumerate(path.steps) if t.source == path.loop_state)
+    loop_index = _loop_index(path)
     return list(path.steps[:loop_index] + path.steps[loop_index:] * num_loops)
 
 
 def candidate_sequences(aut: Automaton, max_sequences: int, max_length: int) -> Sequences:
     """DeepLTL's candidate reach-avoid sequences from every live state, as padded arrays.
 
-    The search is complete unless it needs over `SEARCH_BUDGET` calls; then (with a warning)
-    it is repeated over the shortest paths to acceptance only. Sequences longer than
-    `max_length` are dropped and, past `max_sequences` per state, only the shortest are kept
-    (stable order); both are reported with a warning.
+    The search is complete unless it runs over `SEARCH_BUDGET` calls or `WORK_BUDGET` work;
+    then the start states it did not serve (`complete` False) get the shortest paths to
+    acceptance instead (see `_all_paths`). Sequences longer than `max_length` are dropped and,
+    past `max_sequences` per state, only the shortest are kept (stable order), counted in
+    `dropped`. Nothing is warned here: `tensors.compile_spec` warns from the flags.
     """
     num_loops = 0 if aut.is_finite else NUM_LOOPS_INFINITE
     starts = [q for q in range(aut.num_states)
               if not (aut.violation[q] or (aut.is_finite and aut.success[q]))]
-    try:
-        search = _Search(aut)
-        found = {q: search.paths(q) for q in starts}
-    except _OverBudget:
-        warnings.warn(f"the complete candidate search needs over {SEARCH_BUDGET} calls; "
-                      "candidates are the shortest paths instead (see docs/automata.md)",
-                      stacklevel=3)
-        search = _Search(aut, shortest=True)
-        found = {q: search.paths(q) for q in starts}
-    per_state, dropped = [], 0
+    found, incomplete = _all_paths(aut, starts, max_sequences)
+    per_state = []
+    dropped = np.zeros(aut.num_states, dtype=np.int32)
     for q in range(aut.num_states):
-        if q not in found:
-            per_state.append([])
-            continue
-        seqs = [_to_sequence(p, num_loops) for p in found[q]]
-        kept = sorted((s for s in seqs if 0 < len(s) <= max_length), key=len)[:max_sequences]
-        dropped += len(seqs) - len(kept)
-        per_state.append(kept)
-    if dropped:
-        warnings.warn(f"{dropped} candidate sequences dropped (over max_length={max_length} "
-                      f"or max_sequences={max_sequences} per state)", stacklevel=3)
+        paths = found.get(q, ())
+        sizes = [_sequence_length(p, num_loops) for p in paths]
+        kept = sorted((k for k, n in enumerate(sizes) if 0 < n <= max_length),
+                      key=sizes.__getitem__)[:max_sequences]
+        dropped[q] = len(paths) - len(kept)
+        per_state.append([_to_sequence(paths[k], num_loops) for k in kept])
     # row 0 of the pair table is the padding pair: no reach, no avoid, no epsilon
     pairs: dict[tuple, int] = {(0, 0, -1): 0}
     num_seq = max(1, max(len(s) for s in per_state))
@@ -325,5 +417,8 @@ def candidate_sequences(aut: Automaton, max_sequences: int, max_length: int) -> 
         reach[u] = [reach_mask >> int(a) & 1 for a in symbols]
         avoid[u] = [avoid_mask >> int(a) & 1 for a in symbols]
         slot[u] = eps_slot
+    complete = np.ones(aut.num_states, dtype=bool)
+    complete[incomplete] = False
     return Sequences(pair=ids.astype(np.int16), pair_reach=reach, pair_avoid=avoid,
-                     pair_epsilon_slot=slot, length=lengths, valid=lengths > 0)
+                     pair_epsilon_slot=slot, length=lengths, valid=lengths > 0,
+                     complete=complete, dropped=dropped)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -39,6 +40,8 @@ class CompiledSpec:
         seq_pair: int16[S, C, L] each step's pair (row of the pair table; 0, the empty
             padding pair, past the end); seq_length: int32[S, C]; seq_valid: bool[S, C]:
             DeepLTL's candidate sequences. `pairs(spec, spec.seq_pair[q, c])` gives the masks.
+        seq_complete: bool[S] state q's candidates are the complete search's; False where the
+            search was over its budget and they are shortest paths to acceptance only.
         pair_reach, pair_avoid: bool[U, A] symbols to reach / avoid (reach empty for epsilon);
         pair_epsilon_slot: int32[U] epsilon edge to take, -1 if not an epsilon step.
         step_table: int32[S, A + 1 + E] every step outcome packed in one word (`pack_step_table`):
@@ -63,6 +66,7 @@ class CompiledSpec:
     seq_pair: jnp.ndarray
     seq_length: jnp.ndarray
     seq_valid: jnp.ndarray
+    seq_complete: jnp.ndarray
     pair_reach: jnp.ndarray
     pair_avoid: jnp.ndarray
     pair_epsilon_slot: jnp.ndarray
@@ -83,6 +87,7 @@ FIELDS = tuple(CompiledSpec.__dataclass_fields__)
 _DERIVED = ("step_table", "symbol_of_code")
 MAX_CODE_TABLE_PROPS = 12
 _STORED = tuple(f for f in FIELDS if f not in _DERIVED)
+_CACHED = _STORED + ("seq_dropped",)  # int32[]: candidates dropped by the caps, for the warning
 
 STATE_MASK = (1 << 28) - 1
 ACCEPTED_BIT = 1 << 28
@@ -158,6 +163,10 @@ def compile_spec(
 
     Raises:
         ValueError / TypeError: bad formula, proposition, alphabet, or an unsatisfiable formula.
+
+    Warns:
+        UserWarning: the candidate search was incomplete for some states (`seq_complete`), or
+            candidates were dropped by the caps; again whenever the spec comes from the cache.
     """
     propositions = tuple(propositions)
     if len(set(propositions)) != len(propositions) or not propositions:
@@ -174,10 +183,11 @@ def compile_spec(
     key = cache.cache_key(formula if isinstance(formula, str) else repr(formula), propositions,
                           alphabet, max_sequences=max_sequences, max_length=max_length)
     arrays = cache.load(key) if use_cache else None
-    if arrays is None or set(arrays) != set(_STORED):
+    if arrays is None or set(arrays) != set(_CACHED):
         arrays = _build(formula, propositions, alphabet, max_sequences, max_length)
         if use_cache:
             cache.save(key, arrays)
+    _warn_search(arrays, max_sequences, max_length)
     arrays = {name: np.asarray(arrays[name]) for name in _STORED}
     arrays["step_table"] = pack_step_table(arrays)
     arrays["symbol_of_code"] = symbol_of_code(alphabet)
@@ -205,11 +215,27 @@ def _build(formula, propositions, alphabet, max_sequences, max_length) -> dict[s
         "seq_pair": seqs.pair,
         "seq_length": seqs.length,
         "seq_valid": seqs.valid,
+        "seq_complete": seqs.complete,
+        "seq_dropped": np.int32(seqs.dropped.sum()),
         "pair_reach": seqs.pair_reach,
         "pair_avoid": seqs.pair_avoid,
         "pair_epsilon_slot": seqs.pair_epsilon_slot,
     }
 
+
+
+def _warn_search(arrays: dict[str, np.ndarray], max_sequences: int, max_length: int) -> None:
+    """The warnings of an incomplete candidate search, built or loaded from the cache alike."""
+    complete = np.asarray(arrays["seq_complete"])
+    if not complete.all():
+        warnings.warn(f"the complete candidate search was over its budget from "
+                      f"{int((~complete).sum())} of {complete.size} automaton states; their "
+                      "candidates are shortest paths to acceptance only (see docs/automata.md)",
+                      stacklevel=3)
+    dropped = int(arrays["seq_dropped"])
+    if dropped:
+        warnings.warn(f"{dropped} candidate sequences dropped (over max_length={max_length} "
+                      f"or max_sequences={max_sequences} per state)", stacklevel=3)
 
 # per field: which axes are padded, to which common size (by axis letter), and with what value
 _PAD = {
@@ -219,6 +245,7 @@ _PAD = {
     "subgoal_reach": ("SG", False), "subgoal_avoid": ("SG", False),
     "subgoal_target": ("SG", -1), "subgoal_valid": ("SG", False),
     "seq_pair": ("SCL", 0), "seq_length": ("SC", 0), "seq_valid": ("SC", False),
+    "seq_complete": ("S", True),
     "pair_reach": ("U", False), "pair_avoid": ("U", False), "pair_epsilon_slot": ("U", -1),
 }
 _AXIS = {"S": ("delta", 0), "E": ("epsilon", 1), "G": ("subgoal_target", 1),
