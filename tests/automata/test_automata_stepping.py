@@ -175,3 +175,47 @@ def test_labels_wider_than_an_int32_code():
     q, _, success, violation = jax.vmap(step, (None, None, 0, None))(spec, spec.init, labels, False)
     assert not bool(success[0]) and not bool(violation[0]) and int(q[0]) == int(spec.init)
     assert bool(success[1]) and bool(violation[2])
+
+
+def _numpy_step(spec, q, label, slot):
+    """The step of one unstacked spec from its own tables; a state past them is padding."""
+    delta, epsilon = np.asarray(spec.delta), np.asarray(spec.epsilon)
+    if q >= delta.shape[0]:
+        return q, False, False, False
+    if slot >= 0:
+        target = epsilon[q, slot] if slot < epsilon.shape[1] else -1
+        nxt, acc = (int(target) if target >= 0 else q), False
+    else:
+        rows = np.nonzero((np.asarray(spec.alphabet) == label).all(axis=1))[0]
+        nxt = int(delta[q, rows[0]]) if len(rows) else q
+        acc = bool(len(rows)) and bool(np.asarray(spec.accepting)[q, rows[0]])
+    return nxt, acc, bool(np.asarray(spec.success)[nxt]), bool(np.asarray(spec.violation)[nxt])
+
+
+@pytest.mark.parametrize("num_props", [4, 13])  # a code table (P <= 12) or none
+def test_step_in_batch_with_epsilon_slots_and_unknown_labels(num_props):
+    """Integer epsilon slots (none, each slot, slots only padding has, past the end), labels in
+    and out of the alphabet, padded states: `step_in_batch` on a stack agrees with numpy on
+    each member's own tables."""
+    props = PROPS + tuple(f"x{i}" for i in range(num_props - 4))
+    formulas = ["FG a | GF b", "FG a & F(b & F c)", "!a U (b & F c)", "GF a & GF b & G !d"]
+    specs = [compile_spec(f, props, zero_or_one(num_props)) for f in formulas]
+    batch = stack(specs)
+    num_slots = batch.epsilon.shape[-1]
+    assert num_slots == 2 and {s.epsilon.shape[-1] for s in specs} == {1, 2}
+    rng = np.random.default_rng(num_props)
+    n = 3000
+    ids = rng.integers(0, len(specs), n)
+    qs = rng.integers(0, batch.delta.shape[1], n)
+    alphabet = np.asarray(batch.alphabet[0])
+    labels = alphabet[rng.integers(0, len(alphabet), n)]
+    unknown = rng.random(n) < 0.3  # random labels: mostly several propositions at once
+    labels[unknown] = rng.random((int(unknown.sum()), num_props)) < 0.3
+    slots = rng.integers(-2, num_slots + 2, n).astype(np.int32)
+    got = jax.jit(jax.vmap(step_in_batch, (None, 0, 0, 0, 0)))(batch, ids, qs, labels, slots)
+    got = list(zip(*[np.asarray(x).tolist() for x in got]))
+    want = [_numpy_step(specs[i], q, label, slot)
+            for i, q, label, slot in zip(ids, qs.tolist(), labels, slots.tolist())]
+    assert got == want
+    moved, accepted = np.array([w[0] for w in want]) != qs, np.array([w[1] for w in want])
+    assert min((moved & (slots >= 0)).sum(), (moved & (slots < 0)).sum(), accepted.sum()) > 20
