@@ -4,6 +4,8 @@ LetterCNN's matmul), and the epochs the KL stop leaves per update. Writes a JSON
 
 Example (GPU):
     python benchmarks/train_profile.py --method genz --out /tmp/profile.json
+The CNN comparison alone (CPU, one 128-image minibatch):
+    python benchmarks/train_profile.py --cnn-only 128 --out /tmp/cnn.json
 """
 
 from __future__ import annotations
@@ -101,8 +103,17 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=10, help="epochs per epoch timing")
     parser.add_argument("--chunk", type=int, default=10, help="updates per timed training chunk")
     parser.add_argument("--map-bank", type=int, default=65536)
+    parser.add_argument("--cnn-only", type=int, default=None, metavar="N",
+                        help="only the CNN comparison, on N random reduced LetterWorld images, 3 times")
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
+    if args.cnn_only:
+        images = jax.random.choice(jax.random.key(3), jnp.array([0.0, 0.2, 0.5, 1.0]), (args.cnn_only, 7, 7, 1))
+        report = {"device": str(jax.devices()[0]), "jax": jax.__version__,
+                  "cnn_fwd_bwd_s": [cnn_timings(images) for _ in range(3)]}
+        print(json.dumps(report), flush=True)
+        Path(args.out).write_text(json.dumps(report, indent=1))
+        return
 
     device = jax.devices()[0]
     overrides = experiment.default_overrides(device.platform)
