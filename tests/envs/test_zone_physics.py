@@ -4,6 +4,8 @@ check runs on the GPU in benchmarks/zone_physics.py, its CPU compile alone takes
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -12,7 +14,7 @@ import pytest
 
 from specrl_jax.envs.zone import make_zone
 from specrl_jax.envs.zone.config import DEFAULT_SOLVERS, level_config
-from specrl_jax.envs.zone.models import ROBOTS, Solver, load_model
+from specrl_jax.envs.zone.models import ROBOTS, Solver, load_model, start_height
 
 #: The original's settings: every geom collides, MuJoCo's default solver.
 ORIGINAL = Solver(prune_contacts=False)
@@ -26,6 +28,13 @@ def start_qpos(robot: str, rng: np.random.Generator) -> np.ndarray:
     joints = {"Car": [0, 0, 1, 0, 0, 0],
               "Ant": np.array([0, 1, 0, -1, 0, -1, 0, 1]) * np.pi / 2 + rng.uniform(-0.1, 0.1, 8)}
     return np.array([0, 0, ROBOTS[robot].z_height, *quat, *joints[robot]])
+
+
+@functools.cache
+def zone(robot: str):
+    """(env, params, jitted reset, jitted step_env) of the level-0 world, built once."""
+    env, params = make_zone(level_config(robot, 0))
+    return env, params, jax.jit(env.reset), jax.jit(env.step_env)
 
 
 def c_rollout(model: mujoco.MjModel, qpos: np.ndarray, actions: np.ndarray) -> np.ndarray:
@@ -83,16 +92,18 @@ def test_fewer_car_solver_iterations_would_change_trajectories():
     assert np.abs(c_rollout(fast, qpos, actions) - c_rollout(original, qpos, actions)).max() > 0.01
 
 
-@pytest.mark.parametrize("robot, bound", [("Point", 2e-3), ("Car", 2e-3)])
-def test_mjx_tracks_mujoco_c(robot, bound):
-    """50 env steps of random actions from a random start: MJX (float32) against MuJoCo C
-    (float64) on the same model; the fact sheet measured about 1e-3 m for the original."""
-    env, params = make_zone(level_config(robot, 0))
+@pytest.mark.parametrize("robot, steps, bound", [("Point", 50, 2e-3), ("Car", 25, 2e-3)])
+def test_mjx_tracks_mujoco_c(robot, steps, bound):
+    """Env steps of random actions from the env's reset: MJX (float32) against MuJoCo C
+    (float64) on the same model; the fact sheet measured about 1e-3 m for the original. The
+    free-running Car departs on some seeds after ~10-40 random-action steps, where its own
+    dynamics amplify float32 rounding at a contact event (C started from MJX's state does
+    the same; benchmarks/RESULTS.md); `test_mjx_car_steps_agree_with_mujoco_c` covers more."""
+    env, params, reset, step = zone(robot)
     rng = np.random.default_rng(1)
-    _, state = jax.jit(env.reset)(jax.random.key(0), params)
+    _, state = reset(jax.random.key(0), params)
     start = np.asarray(state.start_qpos, np.float64)
-    actions = rng.uniform(-1, 1, (50, env.robot.action_dim)).astype(np.float32)
-    step = jax.jit(env.step_env)
+    actions = rng.uniform(-1, 1, (steps, env.robot.action_dim)).astype(np.float32)
     positions = []
     for a in actions:
         _, state, *_ = step(jax.random.key(0), state, jnp.asarray(a), params)
@@ -100,3 +111,52 @@ def test_mjx_tracks_mujoco_c(robot, bound):
     reference = c_rollout(env.mj_model, start, actions)
     assert np.linalg.norm(reference[-1, :2] - start[:2]) > 0.05  # it moved
     assert np.abs(np.array(positions) - reference).max() < bound
+
+
+def test_car_start_pose_is_well_posed():
+    """The Car starts at its resting height (`start_height`), where its MuJoCo C trajectory
+    depends continuously on the start. At the original's spawn height (0.1 m) the wheels and
+    caster exactly touch the floor: a 1e-9 m higher start moves the Car by centimetres within
+    50 random-action steps on some seeds, in MuJoCo C itself."""
+    model = load_model("Car", DEFAULT_SOLVERS["Car"])
+
+    def spread(height: float) -> float:
+        worst = 0.0
+        for seed in range(8):
+            rng = np.random.default_rng(seed)
+            qpos = start_qpos("Car", rng)
+            actions = rng.uniform(-1, 1, (50, 2))
+            qpos[2] = height
+            raised = qpos + np.eye(13)[2] * 1e-9
+            moved = c_rollout(model, raised, actions) - c_rollout(model, qpos, actions)
+            worst = max(worst, float(np.abs(moved).max()))
+        return worst
+
+    assert 0.0997 < start_height("Car", model) < 0.1
+    assert spread(start_height("Car", model)) < 1e-7
+    assert spread(ROBOTS["Car"].z_height) > 1e-2
+
+
+def test_mjx_car_steps_agree_with_mujoco_c():
+    """From the env's reset, each env step of MJX (float32) agrees with MuJoCo C started from
+    MJX's state to 1e-5 m, the first step included (from the original's spawn height C finds
+    no contact there while MJX finds five: ~1e-3 m). Free-running, the Car's own dynamics
+    amplify float32 rounding at some contact events (benchmarks/RESULTS.md), so the per-step
+    error is what bounds the model difference over many seeds."""
+    env, params, reset, step = zone("Car")
+    data = mujoco.MjData(env.mj_model)
+    worst = 0.0
+    for seed in range(4):
+        rng = np.random.default_rng(seed)
+        _, state = reset(jax.random.key(seed), params)
+        for a in rng.uniform(-1, 1, (50, 2)).astype(np.float32):
+            physics = state.physics
+            data.qpos[:], data.qvel[:] = np.asarray(physics.qpos), np.asarray(physics.qvel)
+            data.qacc_warmstart[:] = np.asarray(physics.qacc_warmstart)
+            data.ctrl[:] = a
+            for _ in range(10):
+                mujoco.mj_step(env.mj_model, data)
+            mujoco.mj_forward(env.mj_model, data)
+            _, state, *_ = step(jax.random.key(0), state, jnp.asarray(a), params)
+            worst = max(worst, float(np.abs(np.asarray(state.physics.agent_pos) - data.xpos[1]).max()))
+    assert worst < 1e-5, worst

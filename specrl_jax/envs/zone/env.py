@@ -15,7 +15,7 @@ from specrl_jax.envs.base import Env, Info, Obs
 from specrl_jax.envs.zone import labels as labels_lib
 from specrl_jax.envs.zone.config import ZoneConfig
 from specrl_jax.envs.zone.layout import check_feasible, from_bank, sample_bank, sample_positions
-from specrl_jax.envs.zone.models import ROBOTS, load_model
+from specrl_jax.envs.zone.models import ROBOTS, load_model, start_height
 from specrl_jax.envs.zone.physics import SUBSTEPS, Physics, PhysicsState
 from specrl_jax.envs.zone.sensors import compute_lidar, robot_sensor_reader, wall_sensor
 
@@ -74,6 +74,7 @@ class ZoneEnv(Env):
         self._num_parallel = check_feasible(config)
         self.mj_model = load_model(config.robot, config.solver)
         self.physics = Physics(self.mj_model, config.physics)
+        self.start_height = start_height(config.robot, self.mj_model)
         self.frame_dt = SUBSTEPS * float(self.mj_model.opt.timestep)
         colors = [c for c, n in zip(config.colors, config.zones_per_color) for _ in range(n)]
         self.zone_color = np.asarray([self.propositions.index(c) for c in colors], np.int32)
@@ -183,7 +184,7 @@ class ZoneEnv(Env):
         if self.config.robot == "Point":
             qpos = jnp.concatenate([agent_xy, yaw[None]])
         else:
-            position = jnp.concatenate([agent_xy, jnp.array([self.robot.z_height])])
+            position = jnp.concatenate([agent_xy, jnp.array([self.start_height])])
             qpos = jnp.concatenate([position, _yaw_quat(yaw), jnp.asarray(layout["joint_qpos"])])
         state = ZoneState(
             physics=self.physics.init(qpos),

@@ -14,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import mujoco
+import numpy as np
 
 
 @dataclass(frozen=True)
@@ -48,7 +49,8 @@ class Robot:
     Attributes:
         name: "Point", "Car" or "Ant".
         timestep: physics step, seconds.
-        z_height: initial z of the robot body, metres.
+        z_height: the original's spawn height of the robot body, metres (our Car starts at
+            `start_height` instead).
         keepout: layout keepout of the agent, metres.
         action_dim: number of actuators.
         ego_keys: the original's robot-sensor keys and their sizes, alphabetical (lidar and
@@ -256,3 +258,24 @@ def robot_xml(robot: str, solver: Solver = Solver()) -> str:
 def load_model(robot: str, solver: Solver = Solver()) -> mujoco.MjModel:
     """Compile the MJCF of `robot` into a MuJoCo model."""
     return mujoco.MjModel.from_xml_string(robot_xml(robot, solver))
+
+
+def start_height(robot: str, model: mujoco.MjModel, seconds: float = 1.0) -> float:
+    """Height of the robot body at the episode start, metres.
+
+    The original spawns every robot at `z_height`. For the Car that puts the wheels and the
+    caster exactly on the floor (distance 0), where whether a contact exists at the first
+    substep is decided by rounding: MuJoCo C (float64) finds none, MJX finds five, and the
+    trajectories part. The Car therefore starts at the height where it rests under gravity:
+    the body z after MuJoCo C runs `model` from the original's level pose at zero control for
+    `seconds` (it is still to 1e-8 m/s after 0.4 s); its contacts then penetrate by ~1e-4 m.
+    Point (height not a degree of freedom) and Ant (feet ~2 cm above the floor) keep `z_height`.
+    """
+    z_height = ROBOTS[robot].z_height
+    if robot != "Car":
+        return z_height
+    data = mujoco.MjData(model)
+    data.qpos[:] = np.array([0.0, 0.0, z_height, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+    for _ in range(round(seconds / model.opt.timestep)):
+        mujoco.mj_step(model, data)
+    return float(data.qpos[2])
