@@ -24,11 +24,11 @@ def child(formula: str) -> dict:
     import time
 
     sys.path.insert(0, os.path.join(HERE, ".."))
-    from specrl_jax.automata import subgoals, translate, zero_or_one
+    from specrl_jax.automata import candidates, translate, zero_or_one
 
     aut = translate.translate(formula, LETTERS, zero_or_one(len(LETTERS)))
     start = time.perf_counter()
-    seqs = subgoals.candidate_sequences(aut, max_sequences=64, max_length=24)
+    seqs = candidates.candidate_sequences(aut, max_sequences=64, max_length=24)
     seconds = time.perf_counter() - start
     live = ~aut.violation & ~(aut.success & aut.is_finite)
     return {"states": aut.num_states, "live": int(live.sum()),

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from specrl_jax.automata import cache, subgoals, translate
+from specrl_jax.automata import cache, candidates, subgoals, translate
 
 DEFAULT_MAX_SEQUENCES = 64
 DEFAULT_MAX_LENGTH = 24
@@ -158,7 +158,7 @@ def compile_spec(
         alphabet: bool[A, P], the assignments the world can produce (`env.alphabet`); default
             all 2**P subsets (only for P <= 10).
         max_sequences, max_length: caps C and L of the candidate sequences (see
-            `subgoals.candidate_sequences` for what happens past them).
+            `candidates.candidate_sequences` for what happens past them).
         use_cache: read and write the disk cache (`cache.cache_dir()`).
 
     Raises:
@@ -198,7 +198,7 @@ def compile_spec(
 def _build(formula, propositions, alphabet, max_sequences, max_length) -> dict[str, np.ndarray]:
     aut = translate.translate(formula, propositions, alphabet)
     goals = subgoals.one_step_subgoals(aut)
-    seqs = subgoals.candidate_sequences(aut, max_sequences, max_length)
+    seqs = candidates.candidate_sequences(aut, max_sequences, max_length)
     return {
         "delta": aut.delta.astype(np.int32),
         "accepting": aut.accepting,

@@ -11,7 +11,7 @@ import pytest
 from automata_paper import paper_groups
 
 from specrl_jax.automata import cache, compile_spec, graph, pairs, stack, translate, zero_or_one
-from specrl_jax.automata import subgoals as sg
+from specrl_jax.automata import candidates as sg
 from specrl_jax.automata.tensors import DEFAULT_MAX_LENGTH, DEFAULT_MAX_SEQUENCES
 
 LETTERS = tuple("abcdefghijkl")
