@@ -11,6 +11,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from mujoco import mjx
 
 from specrl_jax.envs.zone import make_zone
 from specrl_jax.envs.zone.config import DEFAULT_SOLVERS, level_config
@@ -160,3 +161,35 @@ def test_mjx_car_steps_agree_with_mujoco_c():
             _, state, *_ = step(jax.random.key(0), state, jnp.asarray(a), params)
             worst = max(worst, float(np.abs(np.asarray(state.physics.agent_pos) - data.xpos[1]).max()))
     assert worst < 1e-5, worst
+
+
+def test_solver_cone_is_validated():
+    assert 'cone="elliptic"' in Solver(cone="elliptic").option()
+    with pytest.raises(ValueError, match="cone"):
+        Solver(cone="round")
+
+
+def test_mjx_ant_contact_accelerations_agree_with_c_only_with_an_elliptic_cone():
+    """The Ant stands on its foot tips, capsules within 60 degrees of the floor normal. MuJoCo C
+    orients such a contact's tangents along the capsule axis, MJX 3.17 along world y; the
+    normals, distances, friction and impedances agree. A pyramidal cone (the original's) is not
+    rotation-invariant, so MJX's accelerations then differ from C's by several percent; an
+    elliptic cone with isotropic friction is, and MJX matches C
+    (benchmarks/zone_contact_diff.py; RESULTS.md)."""
+    forward = jax.jit(mjx.forward)
+    for cone, agree in (("elliptic", True), ("pyramidal", False)):
+        model = load_model("Ant", Solver(8, 4, 6, cone=cone))
+        data = mujoco.MjData(model)
+        data.qpos[:] = model.qpos0
+        for _ in range(100):
+            mujoco.mj_step(model, data)
+        data.ctrl[:] = np.random.default_rng(0).uniform(-1, 1, model.nu)
+        mujoco.mj_forward(model, data)
+        assert data.ncon == 4
+        x = forward(mjx.put_model(model), mjx.put_data(model, data))
+        contact = x._impl.contact
+        live = np.asarray(contact.dist) < np.asarray(contact.includemargin)
+        frames = np.asarray(contact.frame)[live]
+        np.testing.assert_allclose(frames[:, 0], data.contact.frame[:, :3], atol=1e-6)
+        error = np.abs(np.asarray(x.qacc) - data.qacc).max() / np.abs(data.qacc).max()
+        assert (error < 1e-4) if agree else (error > 0.01), (cone, error)

@@ -19,15 +19,30 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Solver:
-    """Solver settings of the physics model; the default is MuJoCo's (the original's)."""
+    """Solver settings of the physics model; the default is MuJoCo's (the original's).
+
+    `cone` is the friction cone, "pyramidal" (the original's) or "elliptic". MJX orients the
+    tangent axes of a capsule-plane contact along the plane's axes, MuJoCo C along the capsule;
+    a pyramidal cone is not rotation-invariant, so the two solve different contact problems for
+    the Ant's feet, while an elliptic cone with isotropic friction is the same problem in both
+    (benchmarks/zone_contact_diff.py).
+    """
 
     iterations: int = 100
     ls_iterations: int = 50
     condim: int = 6
     prune_contacts: bool = True
+    cone: str = "pyramidal"
+
+    def __post_init__(self) -> None:
+        if self.cone not in ("pyramidal", "elliptic"):
+            raise ValueError(f"cone must be 'pyramidal' or 'elliptic', got {self.cone!r}")
 
     def option(self) -> str:
-        return f'iterations="{self.iterations}" ls_iterations="{self.ls_iterations}"'
+        return (
+            f'iterations="{self.iterations}" ls_iterations="{self.ls_iterations}" '
+            f'cone="{self.cone}"'
+        )
 
     def floor(self) -> str:
         bits = 'contype="0" conaffinity="1"' if self.prune_contacts else ""
