@@ -31,8 +31,19 @@ def symbol_index(spec: CompiledSpec, props: jax.Array) -> jax.Array:
         int32[], the matching row of `spec.alphabet`, or -1 if the label is not in the alphabet
         (use `step_checked` or `check_labels` to turn that into an error).
     """
-    match = jnp.all(spec.alphabet == props.astype(bool)[None, :], axis=-1)
+    match = _matches(spec.alphabet, props)
     return jnp.where(match.any(), jnp.argmax(match), -1).astype(jnp.int32)
+
+
+def _matches(alphabet: jax.Array, props: jax.Array) -> jax.Array:
+    """bool[..., A]: which alphabet rows equal the label(s) `props` bool[..., P]."""
+    return jnp.all(alphabet == props.astype(bool)[..., None, :], axis=-1)
+
+
+def label_symbol(alphabet: jax.Array, props: jax.Array) -> jax.Array:
+    """int32[...]: the alphabet row of each label `props` bool[..., P] (row 0 for a label outside
+    the alphabet, which a world never produces; `symbol_index` tells that case apart)."""
+    return jnp.argmax(_matches(alphabet, props), axis=-1).astype(jnp.int32)
 
 
 def has_epsilon(spec: CompiledSpec, q: jax.Array) -> jax.Array:
@@ -74,7 +85,7 @@ def _column(alphabet: jax.Array, symbol_of_code: jax.Array, num_slots: int, prop
         for a in range(num_symbols):
             symbol = jnp.where(code == codes[a], a, symbol)
     else:
-        match = jnp.all(alphabet == props.astype(bool)[None, :], axis=-1)
+        match = _matches(alphabet, props)
         symbol = jnp.where(match.any(), jnp.argmax(match), num_symbols)
     eps_column = jnp.where(slot < num_slots, num_symbols + 1 + slot, num_symbols)
     return jnp.where(slot >= 0, eps_column, symbol).astype(jnp.int32)

@@ -18,7 +18,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from specrl_jax.automata import pairs
+from specrl_jax.automata import label_symbol, pairs
 from specrl_jax.baselines.ppo.networks import MLP, DiscreteHead, LetterCNN, PolicyOutput, critic
 from specrl_jax.baselines.ppo.rollout import StepResult
 from specrl_jax.baselines.ppo.train import PPOConfig
@@ -134,7 +134,7 @@ class DeepLTLTrainEnv:
     def observe(self, obs: dict[str, jax.Array], state: DeepLTLState) -> SequenceObs:
         current = jnp.minimum(state.done_pairs, state.pairs - 1)
         nxt = jnp.minimum(current + 1, state.pairs - 1)
-        symbol = jnp.argmax(jnp.all(self.world.alphabet == state.label, axis=-1))
+        symbol = label_symbol(self.world.alphabet, state.label)
         allowed = state.epsilon[current] & ((nxt == current) | ~state.avoid[nxt, symbol])
         return SequenceObs(letter_image(obs), state.reach, state.avoid, state.epsilon,
                            current, state.pairs, allowed)
@@ -161,7 +161,7 @@ class DeepLTLTrainEnv:
         world = world.replace(time=state.world.time + 1)
         label = jnp.where(take_epsilon, state.label, info["propositions"])
         current = jnp.minimum(state.done_pairs, state.pairs - 1)
-        symbol = jnp.argmax(jnp.all(self.world.alphabet == label, axis=-1))
+        symbol = label_symbol(self.world.alphabet, label)
         violated = ~take_epsilon & state.avoid[current, symbol]
         progressed = jnp.where(take_epsilon, state.epsilon[current],
                                ~state.epsilon[current] & state.reach[current, symbol] & ~violated)
@@ -247,7 +247,7 @@ def make_policy(network: nn.Module, alphabet: jax.Array, num_actions: int = 4,
 
     def seq_obs(obs, task_state, c):
         spec, q = task_state.spec, task_state.q
-        symbol = jnp.argmax(jnp.all(alphabet == task_state.propositions, axis=-1))
+        symbol = label_symbol(alphabet, task_state.propositions)
         length = spec.seq_length[q, c]
         nxt = jnp.minimum(1, length - 1)
         seq = pairs(spec, spec.seq_pair[q, c])

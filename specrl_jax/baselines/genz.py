@@ -20,7 +20,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from specrl_jax.automata import pairs
+from specrl_jax.automata import label_symbol, pairs
 from specrl_jax.baselines.ppo.networks import MLP, DiscreteHead, LetterCNN, PolicyOutput, critic
 from specrl_jax.baselines.ppo.rollout import StepResult
 from specrl_jax.baselines.ppo.train import PPOConfig
@@ -232,7 +232,7 @@ def make_policy(network: nn.Module, alphabet: jax.Array, deterministic: bool = T
         spec, q = task_state.spec, task_state.q
         moved = q != carry.q
         timed_out = (carry.steps >= replan_steps) & ~moved
-        symbol = jnp.argmax(jnp.all(alphabet == task_state.propositions, axis=-1))
+        symbol = label_symbol(alphabet, task_state.propositions)
         give_up = timed_out & ~spec.accepting[q, symbol]
         # A timeout gives up the reach proposition itself (every candidate that shares it), as
         # the reference marks the reach assignment infeasible at the current automaton state.

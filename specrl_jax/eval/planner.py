@@ -20,6 +20,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from specrl_jax.automata import label_symbol
 from specrl_jax.eval.policy import StatefulPolicy
 
 UNREACHABLE = 1 << 20
@@ -36,8 +37,7 @@ def symbol_grid(letters: jax.Array, alphabet: jax.Array) -> jax.Array:
     """
     num_props = alphabet.shape[1]
     props = letters[..., None] == jnp.arange(num_props, dtype=letters.dtype)  # [N, N, P]
-    matches = jnp.all(props[:, :, None, :] == alphabet[None, None], axis=-1)  # [N, N, A]
-    return jnp.argmax(matches, axis=-1).astype(jnp.int32)
+    return label_symbol(alphabet, props)
 
 
 def _shift(grid: jax.Array, move: tuple[int, int]) -> jax.Array:
