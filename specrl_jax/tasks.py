@@ -126,9 +126,7 @@ class TaskEnv:
         params = self.env.default_params if params is None else params
         spec = state.spec
         slot = automata.epsilon_slot(take_epsilon)
-        num_slots = spec.epsilon.shape[-1]
-        is_epsilon = ((slot >= 0) & (slot < num_slots)
-                      & (spec.epsilon[state.q, jnp.clip(slot, 0, num_slots - 1)] >= 0))
+        is_epsilon = automata.takes_epsilon(spec, state.q, slot)
         obs_env, env_state, _, env_terminated, _, env_info = self.env.step(
             key, state.env_state, action, params
         )

@@ -9,6 +9,7 @@ from specrl_jax.automata.stepping import (
     step_checked,
     step_in_batch,
     symbol_index,
+    takes_epsilon,
 )
 from specrl_jax.automata.tensors import CompiledSpec, Pairs, compile_spec, pairs, stack
 from specrl_jax.automata.translate import all_subsets, product, zero_or_one
@@ -29,5 +30,6 @@ __all__ = [
     "step_checked",
     "step_in_batch",
     "symbol_index",
+    "takes_epsilon",
     "zero_or_one",
 ]

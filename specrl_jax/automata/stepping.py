@@ -51,6 +51,16 @@ def has_epsilon(spec: CompiledSpec, q: jax.Array) -> jax.Array:
     return spec.epsilon[q, 0] >= 0
 
 
+def takes_epsilon(spec: CompiledSpec, q: jax.Array, take_epsilon: jax.Array | bool | int
+                  ) -> jax.Array:
+    """bool[]: `step(spec, q, _, take_epsilon)` takes an epsilon edge (the slot asked for exists
+    in state `q`; otherwise the step reads the label)."""
+    slot = epsilon_slot(take_epsilon)
+    num_slots = spec.epsilon.shape[-1]
+    return ((slot >= 0) & (slot < num_slots)
+            & (spec.epsilon[q, jnp.clip(slot, 0, num_slots - 1)] >= 0))
+
+
 def epsilon_slot(take_epsilon: jax.Array | bool | int) -> jax.Array:
     """int32[]: the epsilon slot asked for; a bool means slot 0 (True) or none (False), an
     integer is the slot itself, and any negative value means none."""
