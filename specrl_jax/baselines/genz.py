@@ -214,8 +214,8 @@ def make_policy(network: nn.Module, alphabet: jax.Array, deterministic: bool = T
     """
     alphabet = jnp.asarray(alphabet, bool)
 
-    def plan(params, obs, task_state, infeasible):
-        reach, avoid, valid = candidate_masks(task_state.spec, task_state.q, alphabet)
+    def plan(params, obs, task_state, infeasible, masks):
+        reach, avoid, valid = masks
         images = jax.vmap(reduce_observation, in_axes=(None, 0, 0))(obs, reach, avoid)
         out = network.apply(params, images)
         score = out.value - out.multiplier * out.cost_value
@@ -226,7 +226,8 @@ def make_policy(network: nn.Module, alphabet: jax.Array, deterministic: bool = T
 
     def init(params, obs, task_state, key):
         num = task_state.spec.seq_valid.shape[1] * alphabet.shape[1]
-        return plan(params, obs, task_state, jnp.zeros(num, bool))
+        masks = candidate_masks(task_state.spec, task_state.q, alphabet)
+        return plan(params, obs, task_state, jnp.zeros(num, bool), masks)
 
     def apply(params, obs, task_state, carry: PlanCarry, key):
         spec, q = task_state.spec, task_state.q
@@ -236,12 +237,12 @@ def make_policy(network: nn.Module, alphabet: jax.Array, deterministic: bool = T
         give_up = timed_out & ~spec.accepting[q, symbol]
         # A timeout gives up the reach proposition itself (every candidate that shares it), as
         # the reference marks the reach assignment infeasible at the current automaton state.
-        reach_all, _, _ = candidate_masks(spec, q, alphabet)
-        same_reach = jnp.all(reach_all == carry.reach, axis=-1)
+        masks = candidate_masks(spec, q, alphabet)
+        same_reach = jnp.all(masks[0] == carry.reach, axis=-1)
         infeasible = jnp.where(moved, False, carry.infeasible) | (give_up & same_reach)
         carry = jax.lax.cond(
             moved | give_up,
-            lambda: plan(params, obs, task_state, infeasible),
+            lambda: plan(params, obs, task_state, infeasible, masks),
             lambda: carry._replace(steps=jnp.where(timed_out, 0, carry.steps)),
         )
         out = network.apply(params, reduce_observation(obs, carry.reach, carry.avoid))
