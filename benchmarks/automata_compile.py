@@ -3,13 +3,14 @@
 Also reports the bytes of each compiled LetterWorld spec, and with --gpu-step the cost of the
 automaton step inside a LetterWorld step at a large batch (needs specrl_jax.envs.letter).
 
-    python benchmarks/automata_compile.py [--gpu-step --batch 65536]
+    python benchmarks/automata_compile.py [--gpu-step --batch 65536 --unroll 1 2]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -85,7 +86,18 @@ def child(_args) -> None:
           f"{res['letter_mean_bytes']:.0f} {res['letter_min_bytes']} {res['letter_count']}")
 
 
-def gpu_step(batch: int, steps: int, repeats: int) -> None:
+def scan_body_kernels(hlo: str) -> int:
+    """Kernels (fusions, copies, custom calls) launched per iteration of the outermost loop of a
+    compiled module's text."""
+    blocks = re.split(r"\n(?=\S)", hlo)
+    entry = next(b for b in blocks if b.startswith("ENTRY"))
+    body = re.search(r"while\([^\n]*body=%?([\w.\-]+)", entry).group(1)
+    block = next(b for b in blocks if re.match(r"%?" + re.escape(body) + r" ", b))
+    return len(re.findall(r"^\s*(?:ROOT )?%?\S+ = (?:\(.*?\)|\S+) (?:fusion|copy|custom-call)\(",
+                          block, re.M))
+
+
+def gpu_step(batch: int, steps: int, repeats: int, unrolls: list[int]) -> None:
     import jax
     import jax.numpy as jnp
 
@@ -130,28 +142,36 @@ def gpu_step(batch: int, steps: int, repeats: int) -> None:
     _, state = jax.vmap(env.reset, (0, None))(jax.random.split(key, batch), params)
     q0 = specs.init[spec_ids]
     keys = jax.random.split(key, steps)
-    scanned = lambda body: jax.jit(lambda c: jax.lax.scan(body, c, keys)[0])
     zero = jnp.int32(0)
-    variants = (("env, obs only", scanned(obs_only), (state, zero)),
-                ("env", scanned(env_only), (state, zero)),
-                ("env+automaton", scanned(with_automaton),
-                 (state, zero, q0, jnp.zeros(batch, jnp.int32))))
-    for _, fn, arg in variants:
-        jax.block_until_ready(fn(arg))
-    timings = {name: float("inf") for name, _, _ in variants}
+    variants = {}
+    for unroll in unrolls:
+        scanned = lambda body, u=unroll: jax.jit(lambda c: jax.lax.scan(body, c, keys, unroll=u)[0])
+        for name, body, arg in (
+                ("env, obs only", obs_only, (state, zero)),
+                ("env", env_only, (state, zero)),
+                ("env+automaton", with_automaton, (state, zero, q0, jnp.zeros(batch, jnp.int32)))):
+            fn = scanned(body)
+            kernels = scan_body_kernels(fn.lower(arg).compile().as_text())
+            jax.block_until_ready(fn(arg))
+            variants[unroll, name] = (fn, arg, kernels)
+    timings = dict.fromkeys(variants, float("inf"))
     for _ in range(repeats):  # interleaved, so drifting clocks hit every variant alike
-        for name, fn, arg in variants:
+        for v, (fn, arg, _) in variants.items():
             t = time.perf_counter()
             jax.block_until_ready(fn(arg))
-            timings[name] = min(timings[name], time.perf_counter() - t)
-    for name, best in timings.items():
-        print(f"{name}: {batch * steps / best:.3e} steps/s ({best:.4f} s / {steps} steps, best "
-              f"of {repeats})")
-    over = timings["env+automaton"] / timings["env"] - 1
-    label = timings["env"] / timings["env, obs only"] - 1
-    print(f"automaton overhead: {100 * over:.1f}% over a step with its label; the label itself "
-          f"{100 * label:.1f}% over obs only (batch {batch}, {len(formulas)} specs, "
-          f"{jax.devices()[0].device_kind}, jax {jax.__version__})")
+            timings[v] = min(timings[v], time.perf_counter() - t)
+    print(f"batch {batch}, {len(formulas)} specs, {jax.devices()[0].device_kind}, "
+          f"jax {jax.__version__}, best of {repeats} x {steps} steps")
+    for (unroll, name), best in timings.items():
+        per_iteration = variants[unroll, name][2] / unroll
+        print(f"unroll {unroll} {name:14s}: {batch * steps / best:.3e} steps/s, "
+              f"{1e6 * best / steps:6.2f} us/step, {per_iteration:g} kernels/step")
+    for unroll in unrolls:
+        over = timings[unroll, "env+automaton"] / timings[unroll, "env"] - 1
+        label = timings[unroll, "env"] / timings[unroll, "env, obs only"] - 1
+        extra = 1e6 * (timings[unroll, "env+automaton"] - timings[unroll, "env"]) / steps
+        print(f"unroll {unroll}: automaton overhead {100 * over:+.1f}% ({extra:.2f} us/step) over "
+              f"a step with its label; the label itself {100 * label:+.1f}% over obs only")
 
 
 def main() -> None:
@@ -161,11 +181,13 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=65536)
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--unroll", type=int, nargs="+", default=[1, 2],
+                        help="lax.scan unroll factors to time the step loop under")
     args = parser.parse_args()
     if args.child:
         return child(args)
     if args.gpu_step:
-        return gpu_step(args.batch, args.steps, args.repeats)
+        return gpu_step(args.batch, args.steps, args.repeats, args.unroll)
     cache = tempfile.mkdtemp(prefix="specrl_automata_")
     env = dict(os.environ, SPECRL_JAX_CACHE_DIR=cache, JAX_PLATFORMS="cpu")
     try:
