@@ -94,7 +94,7 @@ def scan_body_kernels(hlo: str) -> int:
     body = re.search(r"while\([^\n]*body=%?([\w.\-]+)", entry).group(1)
     block = next(b for b in blocks if re.match(r"%?" + re.escape(body) + r" ", b))
     return len(re.findall(r"^\s*(?:ROOT )?%?\S+ = (?:\(.*?\)|\S+) (?:fusion|copy|custom-call)\(",
-                          block, re.M))
+                          block, re.MULTILINE))
 
 
 def gpu_step(batch: int, steps: int, repeats: int, unrolls: list[int]) -> None:

@@ -106,10 +106,20 @@ def _unpack(word: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array
             (word & VIOLATION_BIT) != 0)
 
 
+def _from_planes(planes: jax.Array, q: jax.Array
+                 ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """The outcome of state q from its column's bit-planes uint32[K] (`pack_step_planes`)."""
+    bits = [(planes[k] >> q.astype(jnp.uint32)) & 1 for k in range(planes.shape[-1])]
+    # unrolled rather than a reduction over K, so that the step stays one elementwise kernel
+    q_next = sum(bits[k].astype(jnp.int32) << k for k in range(len(bits) - 3))
+    return (q_next.astype(jnp.int32),) + tuple(b == 1 for b in bits[-3:])
+
+
 def step(
     spec: CompiledSpec, q: jax.Array, props: jax.Array, take_epsilon: jax.Array
 ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
-    """One automaton step (one gather from `spec.step_table`).
+    """One automaton step (one gather from `spec.step_planes`, or `spec.step_table` for
+    automata of more than 32 states).
 
     Args:
         spec: a compiled spec.
@@ -125,6 +135,8 @@ def step(
     """
     column = _column(spec.alphabet, spec.symbol_of_code, spec.epsilon.shape[-1], props,
                      take_epsilon)
+    if spec.step_planes.shape[-1]:
+        return _from_planes(spec.step_planes[column], q)
     return _unpack(spec.step_table[q, column])
 
 
@@ -147,6 +159,8 @@ def step_in_batch(
     """
     column = _column(specs.alphabet[0], specs.symbol_of_code[0], specs.epsilon.shape[-1],
                      props, take_epsilon)
+    if specs.step_planes.shape[-1]:
+        return _from_planes(specs.step_planes[spec_id, column], q)
     return _unpack(specs.step_table[spec_id, q, column])
 
 

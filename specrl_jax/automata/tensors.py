@@ -49,6 +49,8 @@ class CompiledSpec:
             epsilon slot e (stay where the slot is empty). Derived from the fields above.
         symbol_of_code: int8/int16[2**P] the symbol of each label read as a binary number
             (A where the label is not in the alphabet); empty if P > 12. Derived from `alphabet`.
+        step_planes: uint32[A + 1 + E, K] `step_table` as bit-planes over the states
+            (`pack_step_planes`) for automata of at most 32 states; [A + 1 + E, 0] otherwise.
     """
 
     delta: jnp.ndarray
@@ -72,6 +74,7 @@ class CompiledSpec:
     pair_epsilon_slot: jnp.ndarray
     step_table: jnp.ndarray
     symbol_of_code: jnp.ndarray
+    step_planes: jnp.ndarray
 
     @property
     def num_states(self) -> int:
@@ -84,7 +87,7 @@ class CompiledSpec:
 
 
 FIELDS = tuple(CompiledSpec.__dataclass_fields__)
-_DERIVED = ("step_table", "symbol_of_code")
+_DERIVED = ("step_table", "symbol_of_code", "step_planes")
 MAX_CODE_TABLE_PROPS = 12
 _STORED = tuple(f for f in FIELDS if f not in _DERIVED)
 _CACHED = _STORED + ("seq_dropped",)  # int32[]: candidates dropped by the caps, for the warning
@@ -122,6 +125,31 @@ def pack_step_table(arrays: dict[str, np.ndarray]) -> np.ndarray:
     packed = (nxt | accepted * ACCEPTED_BIT | arrays["success"][nxt] * SUCCESS_BIT
               | arrays["violation"][nxt] * VIOLATION_BIT)
     return packed.astype(np.int32)
+
+
+MAX_PLANE_STATES = 32
+
+
+def pack_step_planes(step_table: np.ndarray) -> np.ndarray:
+    """uint32[W, K]: a packed `step_table` int32[S, W] turned into bit-planes over the states.
+
+    Bit q of `planes[c, k]` is bit k of the outcome of state q on column c: first the
+    ceil(log2 S) bits of the next state, then accepted, success, violation (K = those + 3). A
+    step then reads one row by column alone and shifts it by q, so the state is only read
+    elementwise and XLA can update a loop-carried state in place, in the kernel that computes
+    it (a gather indexed by q cannot). Only for S <= 32; more states give [W, 0] and the step
+    reads `step_table` instead.
+    """
+    num_states, width = step_table.shape
+    if num_states > MAX_PLANE_STATES:
+        return np.zeros((width, 0), np.uint32)
+    words = step_table.astype(np.int64)
+    state_bits = max(1, (num_states - 1).bit_length())
+    fields = [((words & STATE_MASK) >> k) & 1 for k in range(state_bits)]
+    fields += [(words & flag) != 0 for flag in (ACCEPTED_BIT, SUCCESS_BIT, VIOLATION_BIT)]
+    shifts = np.arange(num_states, dtype=np.uint64)[:, None]
+    planes = [(field.astype(np.uint64) << shifts).sum(axis=0) for field in fields]
+    return np.stack(planes, axis=-1).astype(np.uint32)
 
 
 class Pairs(NamedTuple):
@@ -191,6 +219,7 @@ def compile_spec(
     arrays = {name: np.asarray(arrays[name]) for name in _STORED}
     arrays["step_table"] = pack_step_table(arrays)
     arrays["symbol_of_code"] = symbol_of_code(alphabet)
+    arrays["step_planes"] = pack_step_planes(arrays["step_table"])
     # device_put is a plain copy; jnp.asarray would dispatch (and compile) one op per shape
     return CompiledSpec(**jax.device_put(arrays))
 
@@ -290,4 +319,5 @@ def stack(specs: Sequence[CompiledSpec]) -> CompiledSpec:
     out["step_table"] = np.stack([
         pack_step_table({name: out[name][i] for name in _STORED}) for i in range(len(specs))])
     out["symbol_of_code"] = np.stack([symbol_of_code(alphabet)] * len(specs))
+    out["step_planes"] = np.stack([pack_step_planes(table) for table in out["step_table"]])
     return CompiledSpec(**jax.device_put(out))

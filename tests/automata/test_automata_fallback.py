@@ -7,8 +7,8 @@ import warnings
 import numpy as np
 import pytest
 
-from specrl_jax.automata import compile_spec, pairs, translate, zero_or_one
 from specrl_jax.automata import candidates as sg
+from specrl_jax.automata import compile_spec, pairs, translate, zero_or_one
 from specrl_jax.automata.translate import Automaton
 
 LETTERS = tuple("abcdefghijkl")

@@ -129,15 +129,19 @@ def test_epsilon_moves_consume_no_label():
     assert int(q3) == int(q1) and not bool(acc)
 
 
-@pytest.mark.parametrize("lookup", ["code_table", "unrolled", "reduction"])
+@pytest.mark.parametrize("lookup", ["code_table", "unrolled", "reduction", "packed_words"])
 def test_step_table_agrees_with_the_automaton_tables(monkeypatch, lookup):
-    """Every (state, label or epsilon slot) read from the packed table gives the same next state
-    and flags as delta / accepting / epsilon / success / violation, on each label lookup."""
+    """Every (state, label or epsilon slot) read from the bit-planes (or, past 32 states, the
+    packed words) gives the same next state and flags as delta / accepting / epsilon / success /
+    violation, on each label lookup."""
     from specrl_jax.automata import stepping
 
     spec = compile_spec("FG a | GF b & GF c", PROPS, zero_or_one(4))
-    if lookup != "code_table":  # the table is left out for P > 12
+    assert spec.step_planes.shape[-1] == max(1, (spec.num_states - 1).bit_length()) + 3
+    if lookup in ("unrolled", "reduction"):  # the code table is left out for P > 12
         spec = spec.replace(symbol_of_code=spec.symbol_of_code[:0])
+    if lookup == "packed_words":  # the planes are left out for S > 32
+        spec = spec.replace(step_planes=spec.step_planes[:, :0])
     if lookup == "reduction":
         monkeypatch.setattr(stepping, "UNROLL_MAX_SYMBOLS", 0)
     delta, accepting = np.asarray(spec.delta), np.asarray(spec.accepting)
@@ -162,6 +166,27 @@ def test_step_table_agrees_with_the_automaton_tables(monkeypatch, lookup):
     np.testing.assert_array_equal(got[1], want_acc)
     np.testing.assert_array_equal(got[2], success[want_q])
     np.testing.assert_array_equal(got[3], violation[want_q])
+
+
+def test_step_planes_cover_up_to_32_states():
+    """Bit-planes are packed for 32 states (shifts 0..31 of a uint32) and left out past that."""
+    from specrl_jax.automata.tensors import pack_step_planes
+
+    rng = np.random.default_rng(0)
+    for num_states in (1, 2, 32, 33):
+        table = rng.integers(0, num_states, (num_states, 5)).astype(np.int32)
+        table |= rng.integers(0, 8, table.shape).astype(np.int32) << 28
+        planes = pack_step_planes(table)
+        if num_states > 32:
+            assert planes.shape == (5, 0)
+            continue
+        q = np.arange(num_states)[:, None]
+        bits = (planes[None].astype(np.int64) >> q[..., None]) & 1  # [S, W, K]
+        state_bits = planes.shape[-1] - 3
+        assert ((bits[..., :state_bits] << np.arange(state_bits)).sum(-1)
+                == table & ((1 << 28) - 1)).all()
+        for k in range(3):
+            assert (bits[..., state_bits + k] == (table >> (28 + k)) & 1).all()
 
 
 def test_labels_wider_than_an_int32_code():

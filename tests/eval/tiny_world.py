@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from specrl_jax.automata.tensors import pack_step_table, symbol_of_code
+from specrl_jax.automata.tensors import pack_step_planes, pack_step_table, symbol_of_code
 from specrl_jax.envs.base import Env
 from specrl_jax.envs.spaces import Box, Dict, Discrete
 
@@ -107,6 +107,7 @@ class HandSpec:
     alphabet: jax.Array
     step_table: jax.Array
     symbol_of_code: jax.Array
+    step_planes: jax.Array
 
 
 NUM_STATES = 4
@@ -130,10 +131,12 @@ def hand_spec(delta, accepting_into=(), accepting_edges=(), epsilon=None, succes
     mask = lambda idx: np.isin(np.arange(NUM_STATES), list(idx))
     arrays = {"delta": full, "accepting": accepting, "epsilon": eps,
               "success": mask(success), "violation": mask(violation)}
+    table = pack_step_table(arrays)
     return HandSpec(**{k: jnp.asarray(v) for k, v in arrays.items()},
                     init=jnp.asarray(0, jnp.int32), is_finite=jnp.asarray(finite),
-                    alphabet=jnp.asarray(ALPHABET), step_table=jnp.asarray(pack_step_table(arrays)),
-                    symbol_of_code=jnp.asarray(symbol_of_code(ALPHABET)))
+                    alphabet=jnp.asarray(ALPHABET), step_table=jnp.asarray(table),
+                    symbol_of_code=jnp.asarray(symbol_of_code(ALPHABET)),
+                    step_planes=jnp.asarray(pack_step_planes(table)))
 
 
 def reach_avoid_spec() -> HandSpec:
