@@ -9,9 +9,10 @@ are not active, so its active rows are matched to C's: limit rows by their Jacob
 rows by contact geom pair and position in the contact), `efc_force`, `qfrc_constraint`, `qacc`.
 Prints a table per state and names the first stage that differs.
 
-With `--c-frame`, MJX gets MuJoCo C's plane-capsule contact frame (`plane_capsule_c`) and the
-pipelines agree to rounding. `--one-step STEPS` instead measures the per-env-step error of MJX
-(as is, with C's frame, elliptic cone) and of the elliptic cone in C, from C states.
+With `--c-frame`, MJX gets MuJoCo C's plane-capsule contact frame (specrl_jax's
+`contact_frame.c_contact_frame()`, what `Physics` uses) and the pipelines agree to rounding;
+without it MJX 3.17's own collider runs. `--one-step STEPS` instead measures the per-env-step
+error of MJX (MJX's frame, C's frame, elliptic cone) and of the elliptic cone in C, from C states.
 
 Usage: python benchmarks/zone_contact_diff.py [--cone pyramidal|elliptic] [--states 3]
        [--settle 300] [--iterations 100] [--c-frame]
@@ -21,6 +22,7 @@ Usage: python benchmarks/zone_contact_diff.py [--cone pyramidal|elliptic] [--sta
 from __future__ import annotations
 
 import argparse
+import contextlib
 
 import jax
 
@@ -29,9 +31,8 @@ jax.config.update("jax_enable_x64", True)
 import mujoco
 import numpy as np
 from mujoco import mjx
-from mujoco.mjx._src import collision_driver, collision_primitive, math
-from mujoco.mjx._src.types import GeomType
 
+from specrl_jax.envs.zone.contact_frame import c_contact_frame
 from specrl_jax.envs.zone.models import Solver, load_model
 
 #: Relative tolerance of "equal" (float64 pipelines; the solvers stop at tolerance 1e-8).
@@ -40,25 +41,6 @@ CONTACT_ROWS = (
     int(mujoco.mjtConstraint.mjCNSTR_CONTACT_PYRAMIDAL),
     int(mujoco.mjtConstraint.mjCNSTR_CONTACT_ELLIPTIC),
 )
-
-
-@collision_primitive.collider(ncon=2)
-def plane_capsule_c(plane: collision_primitive.GeomInfo, cap: collision_primitive.GeomInfo):
-    """MJX's plane-capsule collider with MuJoCo C's contact frame: the first tangent is the
-    capsule axis made orthogonal to the normal whenever the axis itself is defined (C's
-    `mju_makeFrame` tests the axis before projecting it); MJX 3.17 falls back to world y when
-    the *projected* axis is shorter than 0.5, i.e. for capsules within 60 degrees of the normal,
-    which is how the Ant stands on its feet."""
-    n, axis = plane.mat[:, 2], cap.mat[:, 2]
-    b, b_norm = math.normalize_with_norm(axis - n * jax.numpy.dot(n, axis))
-    b = jax.numpy.where(b_norm < 1e-15, jax.numpy.array([1.0, 0.0, 0.0]), b)
-    frame = jax.numpy.array([[n, b, jax.numpy.cross(n, b)]])
-    segment = axis * cap.size[1]
-    hits = []
-    for offset in (segment, -segment):
-        dist, pos = collision_primitive._plane_sphere(n, plane.pos, cap.pos + offset, cap.size[0])
-        hits.append((dist[None], pos[None], frame))
-    return jax.tree_util.tree_map(lambda *x: jax.numpy.concatenate(x), *hits)
 
 
 def rows_per_contact(model: mujoco.MjModel, condim: int) -> int:
@@ -148,11 +130,7 @@ def one_step(settle: int, steps: int, seeds: int, iterations: int) -> None:
         return np.array(out)
 
     def mjx_step(cone: str, c_frame: bool) -> np.ndarray:
-        key = (GeomType.PLANE, GeomType.CAPSULE)
-        original = collision_driver._COLLISION_FUNC[key]
-        if c_frame:
-            collision_driver._COLLISION_FUNC[key] = plane_capsule_c
-        try:
+        with c_contact_frame() if c_frame else contextlib.nullcontext():
             model, mx = models[cone], mjx.put_model(models[cone])
             step = jax.jit(lambda x: jax.lax.fori_loop(
                 0, 9, lambda _, y: mjx.step(mx, y), mjx.step(mx, x)))
@@ -162,8 +140,6 @@ def one_step(settle: int, steps: int, seeds: int, iterations: int) -> None:
                 data.qpos[:], data.qvel[:], data.ctrl[:] = qpos, qvel, ctrl
                 out.append(np.asarray(step(mjx.put_data(model, data)).qpos))
             return np.array(out)
-        finally:
-            collision_driver._COLLISION_FUNC[key] = original
 
     c_pyr, c_ell = c_step("pyramidal"), c_step("elliptic")
     rows = (
@@ -188,8 +164,8 @@ def main() -> None:
     parser.add_argument("--settle", type=int, default=300)
     parser.add_argument("--iterations", type=int, default=100)
     parser.add_argument("--c-frame", action="store_true",
-                        help="give MJX MuJoCo C's plane-capsule contact frame (patches MJX's "
-                             "collision table in this process only)")
+                        help="give MJX MuJoCo C's plane-capsule contact frame (specrl_jax's "
+                             "contact_frame.c_contact_frame, as the env's physics does)")
     parser.add_argument("--one-step", type=int, default=0, metavar="STEPS",
                         help="instead: per-env-step errors over STEPS steps of --seeds seeds")
     parser.add_argument("--seeds", type=int, default=2)
@@ -197,8 +173,6 @@ def main() -> None:
     if args.one_step:
         one_step(args.settle, args.one_step, args.seeds, args.iterations)
         return
-    if args.c_frame:
-        collision_driver._COLLISION_FUNC[(GeomType.PLANE, GeomType.CAPSULE)] = plane_capsule_c
     solver = Solver(iterations=args.iterations, ls_iterations=50, condim=6, cone=args.cone)
     model = load_model("Ant", solver)
     print(f"mujoco {mujoco.__version__}, jax {jax.__version__}, float64; cone {args.cone}, "
@@ -210,7 +184,9 @@ def main() -> None:
     data.qpos[:] = model.qpos0
     for _ in range(args.settle):
         mujoco.mj_step(model, data)
-    forward = jax.jit(mjx.forward)
+    with c_contact_frame() if args.c_frame else contextlib.nullcontext():
+        forward = jax.jit(lambda m, d: mjx.forward(m, d)).lower(
+            mjx.put_model(model), mjx.put_data(model, data)).compile()
     mx = mjx.put_model(model)
     rng = np.random.default_rng(0)
     for state in range(args.states):

@@ -7,7 +7,9 @@ chaotic dynamics amplify, from modelling differences).
 
 Throughput: 10 physics steps + a forward pass per env step (`Physics.step`), batched, no LiDAR,
 labels or resets: what the physics alone allows. `--physics warp` measures MuJoCo Warp through MJX
-(needs warp-lang). Results are appended to benchmarks/RESULTS.md.
+(needs warp-lang). `--mjx-frame` gives MJX-JAX MJX 3.17's own capsule-plane contact frame instead
+of MuJoCo C's (the Ant before `contact_frame.py`; A/B only). Results are appended to
+benchmarks/RESULTS.md.
 """
 
 from __future__ import annotations
@@ -33,15 +35,24 @@ from specrl_jax.envs.zone.config import level_config
 from specrl_jax.envs.zone.models import Solver
 
 
+def zone_env(robot: str, solver: Solver | None, physics: str, mjx_frame: bool = False):
+    """(env, params) of the robot's level-0 world; `mjx_frame`: MJX's own capsule frame."""
+    env, params = make_zone(level_config(robot, 0, solver=solver, physics=physics))
+    if mjx_frame:
+        env.physics.c_contact_frame = False
+    return env, params
+
+
 def fidelity(
-    robot: str, steps: int, seeds: int, solver: Solver | None, physics: str, settle: int = 0
+    robot: str, steps: int, seeds: int, solver: Solver | None, physics: str, settle: int = 0,
+    mjx_frame: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """float[seeds, steps] twice, max |MJX - C| of the agent body position (metres) per step:
     free-running (C and MJX each from their own previous state), and one-step (C restarted
     from MJX's state before each step: the per-step model error, free of the amplification
     that the Car's own dynamics show at some contact events). With `settle`, MuJoCo C first
     runs that many substeps at zero control and both continue from there."""
-    env, params = make_zone(level_config(robot, 0, solver=solver, physics=physics))
+    env, params = zone_env(robot, solver, physics, mjx_frame)
     step = jax.jit(env.step_env)
     reset = jax.jit(env.reset)
     out, local = [], []
@@ -83,10 +94,11 @@ def fidelity(
 
 
 def physics_throughput(
-    robot: str, batch: int, steps: int, solver: Solver | None, physics: str
+    robot: str, batch: int, steps: int, solver: Solver | None, physics: str,
+    mjx_frame: bool = False,
 ) -> tuple[float, float]:
     """(env-steps/s, compile seconds) of the batched physics alone."""
-    env, params = make_zone(level_config(robot, 0, solver=solver, physics=physics))
+    env, params = zone_env(robot, solver, physics, mjx_frame)
     _, state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(
         jax.random.split(jax.random.key(0), batch), params
     )
@@ -123,6 +135,8 @@ def main() -> None:
         help="use these solver settings instead of the robot's default",
     )
     parser.add_argument("--physics", default="jax", choices=["jax", "warp"])
+    parser.add_argument("--mjx-frame", action="store_true",
+                        help="MJX 3.17's own capsule-plane contact frame (A/B against C's)")
     parser.add_argument(
         "--settle",
         type=int,
@@ -141,7 +155,9 @@ def main() -> None:
         "",
         (
             f"Versions: jax {jax.__version__}, jaxlib {jaxlib.__version__}, mujoco {mujoco.__version__}, "
-            f"MJX {'float64' if args.x64 else 'float32'}, physics {args.physics}. Command: `{shlex.join(['python', *sys.argv])}`"
+            f"MJX {'float64' if args.x64 else 'float32'}, physics {args.physics}"
+            + (", MJX's own capsule contact frame" if args.mjx_frame else "")
+            + f". Command: `{shlex.join(['python', *sys.argv])}`"
         ),
         "",
     ]
@@ -161,7 +177,7 @@ def main() -> None:
         ]
         for robot in args.robots:
             per_seed, one_step = fidelity(
-                robot, args.steps, args.seeds, solver, args.physics, args.settle
+                robot, args.steps, args.seeds, solver, args.physics, args.settle, args.mjx_frame
             )
             dev = per_seed.max(axis=0)
             marks = [dev[min(9, len(dev) - 1)], dev[min(19, len(dev) - 1)], dev[-1]]
@@ -182,7 +198,7 @@ def main() -> None:
         for robot in args.robots:
             for batch in args.batches:
                 rate, compile_s = physics_throughput(
-                    robot, batch, args.bench_steps, solver, args.physics
+                    robot, batch, args.bench_steps, solver, args.physics, args.mjx_frame
                 )
                 lines.append(f"| {robot} | {label} | {batch} | {rate:,.0f} | {compile_s:.1f} |")
                 print(lines[-1], flush=True)

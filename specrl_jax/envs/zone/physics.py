@@ -7,15 +7,21 @@ array shared by all worlds of a batch (`naconmax` rows in all), which must not b
 leaf-wise by auto-reset and must be sized by the number of worlds. `Physics.advance` therefore
 runs under a custom batching rule that flattens any nesting of `vmap`s into one batch of worlds
 and sizes the buffer to it.
+
+MJX-JAX traces capsule-floor contacts (the Ant's legs and feet) with MuJoCo C's contact frame
+(`contact_frame.py`); MuJoCo Warp does its own collision and keeps MJX's frame.
 """
 
 from __future__ import annotations
+
+import contextlib
 
 import jax
 import jax.numpy as jnp
 import mujoco
 from flax import struct
 
+from specrl_jax.envs.zone import contact_frame
 from specrl_jax.envs.zone.mjx_import import mjx
 
 #: Accepted values of `ZoneConfig.physics`.
@@ -72,6 +78,10 @@ class Physics:
         model: the robot's MuJoCo model.
         backend: "jax" (MJX's JAX implementation, any device) or "warp" (MuJoCo Warp
             through MJX: a CUDA GPU, or a CPU where warp-lang has its CPU compiler).
+
+    Raises:
+        RuntimeError: backend "jax", a model with capsule-plane contacts, and an MJX whose
+            collider table is not laid out as `contact_frame` expects.
     """
 
     def __init__(self, model: mujoco.MjModel, backend: str = "jax"):
@@ -91,6 +101,11 @@ class Physics:
             self.model = self.model.replace(
                 opt=self.model.opt.replace(_impl=self.model.opt._impl.replace(warn_overflow=0))
             )
+        # C's capsule-plane frame, for models that have such contacts (the Ant's, not
+        # Point's or Car's); checked here so that an MJX without the expected table fails now.
+        self.c_contact_frame = backend == "jax" and contact_frame.plane_capsule_pairs(model) > 0
+        if self.c_contact_frame:
+            contact_frame.check_mjx()
         if backend == "jax":
             self._template = mjx.make_data(self.model)
             # MJX-JAX's forward skips the acceleration sensors of a model without any constraint
@@ -134,7 +149,10 @@ class Physics:
     def advance(self, state: PhysicsState, ctrl: jax.Array, substeps: int) -> PhysicsState:
         """`substeps` steps then a forward pass, one world (any number of `vmap`s around it)."""
         if self.backend == "jax":
-            return self._advance(self._template, state, ctrl, substeps)
+            scope = (contact_frame.c_contact_frame() if self.c_contact_frame
+                     else contextlib.nullcontext())
+            with scope:
+                return self._advance(self._template, state, ctrl, substeps)
         one = jax.tree.map(lambda x: x[None], (state, ctrl))
         worlds = self._worlds.get(substeps) or self._warp_worlds(substeps)
         return jax.tree.map(lambda x: x[0], worlds(*one))
