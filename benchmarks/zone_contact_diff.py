@@ -13,10 +13,14 @@ With `--c-frame`, MJX gets MuJoCo C's plane-capsule contact frame (specrl_jax's
 `contact_frame.c_contact_frame()`, what `Physics` uses) and the pipelines agree to rounding;
 without it MJX 3.17's own collider runs. `--one-step STEPS` instead measures the per-env-step
 error of MJX (MJX's frame, C's frame, elliptic cone) and of the elliptic cone in C, from C states.
+`--integrator STEPS` compares one physics substep from C states: MJX (C's frame) against MuJoCo
+C's `mj_step` and against the classic RK4 (`classic_rk4`) evaluated with C's `mj_forward`, for
+the Ant's RK4 and, as a control, Euler.
 
 Usage: python benchmarks/zone_contact_diff.py [--cone pyramidal|elliptic] [--states 3]
        [--settle 300] [--iterations 100] [--c-frame]
        python benchmarks/zone_contact_diff.py --one-step 20 --seeds 2 --settle 100 --iterations 8
+       python benchmarks/zone_contact_diff.py --integrator 10 --seeds 2 --settle 100
 """
 
 from __future__ import annotations
@@ -157,6 +161,64 @@ def one_step(settle: int, steps: int, seeds: int, iterations: int) -> None:
               f"{np.median(body):9.2e}")
 
 
+def classic_rk4(model: mujoco.MjModel, data: mujoco.MjData) -> None:
+    """One step of the classic RK4 (tableau A = diag(1/2, 1/2, 1), B = (1, 2, 2, 1) / 6) on
+    MuJoCo C's `mj_forward`, in place: MJX's scheme and MuJoCo 2.3's `mj_RungeKutta`."""
+    h, b = model.opt.timestep, np.array([1, 2, 2, 1]) / 6
+    mujoco.mj_forward(model, data)
+    qpos, qvel = data.qpos.copy(), data.qvel.copy()
+    vels, accs = [qvel], [data.qacc.copy()]
+    for weight in (0.5, 0.5, 1.0):
+        data.qpos[:] = qpos
+        mujoco.mj_integratePos(model, data.qpos, weight * vels[-1], h)
+        data.qvel[:] = qvel + weight * h * accs[-1]
+        mujoco.mj_forward(model, data)
+        vels.append(data.qvel.copy())
+        accs.append(data.qacc.copy())
+    data.qpos[:] = qpos
+    mujoco.mj_integratePos(model, data.qpos, b @ np.array(vels), h)
+    data.qvel[:] = qvel + h * (b @ np.array(accs))
+
+
+def integrator(settle: int, steps: int, seeds: int) -> None:
+    """One substep from C states (the original's model, `steps` random controls per seed after
+    `settle` substeps): max and median |qpos difference| of MJX (C's frame) against C's
+    `mj_step` and against `classic_rk4`, with RK4 and with Euler."""
+    print(f"\none substep from {seeds * steps} C states, Newton 100/50, float64: max / median "
+          "|qpos difference|")
+    for name in ("RK4", "EULER"):
+        model = load_model("Ant", Solver(iterations=100, ls_iterations=50, condim=6))
+        model.opt.integrator = getattr(mujoco.mjtIntegrator, f"mjINT_{name}")
+        mx = mjx.put_model(model)
+        with c_contact_frame():
+            step = jax.jit(lambda x, mx=mx: mjx.step(mx, x))
+            diffs = []
+            for seed in range(seeds):
+                rng = np.random.default_rng(seed)
+                data = mujoco.MjData(model)
+                data.qpos[:] = model.qpos0
+                for _ in range(settle):
+                    mujoco.mj_step(model, data)
+                for _ in range(steps):
+                    data.ctrl[:] = rng.uniform(-1, 1, model.nu)
+                    for _ in range(10):
+                        mujoco.mj_step(model, data)
+                    own, classic = mujoco.MjData(model), mujoco.MjData(model)
+                    for d in (own, classic):
+                        d.qpos[:], d.qvel[:], d.ctrl[:] = data.qpos, data.qvel, data.ctrl
+                    x = np.asarray(step(mjx.put_data(model, own)).qpos)
+                    mujoco.mj_step(model, own)
+                    classic_rk4(model, classic)
+                    diffs.append([np.abs(x - own.qpos).max(), np.abs(x - classic.qpos).max(),
+                                  np.abs(classic.qpos - own.qpos).max()])
+        diffs = np.array(diffs)
+        for i, label in enumerate(("MJX vs C mj_step", "MJX vs classic RK4 on C",
+                                   "classic RK4 on C vs C mj_step")):
+            if name == "EULER" and i:
+                continue
+            print(f"{name:6s} {label:32s} {diffs[:, i].max():9.2e} {np.median(diffs[:, i]):9.2e}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cone", default="pyramidal", choices=("pyramidal", "elliptic"))
@@ -168,8 +230,13 @@ def main() -> None:
                              "contact_frame.c_contact_frame, as the env's physics does)")
     parser.add_argument("--one-step", type=int, default=0, metavar="STEPS",
                         help="instead: per-env-step errors over STEPS steps of --seeds seeds")
+    parser.add_argument("--integrator", type=int, default=0, metavar="STEPS",
+                        help="instead: one substep of MJX, C and the classic RK4 from C states")
     parser.add_argument("--seeds", type=int, default=2)
     args = parser.parse_args()
+    if args.integrator:
+        integrator(args.settle, args.integrator, args.seeds)
+        return
     if args.one_step:
         one_step(args.settle, args.one_step, args.seeds, args.iterations)
         return
