@@ -2,8 +2,11 @@
 
 Fidelity: from the env's reset, `--steps` env steps (10 substeps + forward) of random actions
 through `ZoneEnv.step_env` against MuJoCo C on the same model; prints the max deviation of the
-agent body position, free-running and one-step (C restarted from MJX's state at each step). `--x64` runs MJX in float64 (separates float32 rounding, which
-chaotic dynamics amplify, from modelling differences).
+agent body position, free-running and one-step (C restarted from MJX's state at each step), and
+C's own spread: the largest departure from C of 4 copies of C whose qpos and qvel are changed by
+one float32 rounding step (a random +-2^-24 relative) after every env step. `--x64` runs MJX in
+float64 (separates float32 rounding, which chaotic dynamics amplify, from modelling
+differences).
 
 Throughput: 10 physics steps + a forward pass per env step (`Physics.step`), batched, no LiDAR,
 labels or resets: what the physics alone allows. `--physics warp` measures MuJoCo Warp through MJX
@@ -45,17 +48,19 @@ def zone_env(robot: str, solver: Solver | None, physics: str, mjx_frame: bool = 
 
 def fidelity(
     robot: str, steps: int, seeds: int, solver: Solver | None, physics: str, settle: int = 0,
-    mjx_frame: bool = False,
-) -> tuple[np.ndarray, np.ndarray]:
-    """float[seeds, steps] twice, max |MJX - C| of the agent body position (metres) per step:
-    free-running (C and MJX each from their own previous state), and one-step (C restarted
+    mjx_frame: bool = False, members: int = 4,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """float[seeds, steps] three times, max |MJX - C| of the agent body position (metres) per
+    step: free-running (C and MJX each from their own previous state), one-step (C restarted
     from MJX's state before each step: the per-step model error, free of the amplification
-    that the Car's own dynamics show at some contact events). With `settle`, MuJoCo C first
-    runs that many substeps at zero control and both continue from there."""
+    that the Car's own dynamics show at some contact events), and C's own spread (max |C' - C|
+    over `members` copies C' of C perturbed by float32 rounding-sized steps after every env
+    step). With `settle`, MuJoCo C first runs that many substeps at zero control and both
+    continue from there."""
     env, params = zone_env(robot, solver, physics, mjx_frame)
     step = jax.jit(env.step_env)
     reset = jax.jit(env.reset)
-    out, local = [], []
+    out, local, spread = [], [], []
     one = mujoco.MjData(env.mj_model)
     for seed in range(seeds):
         rng = np.random.default_rng(seed)
@@ -74,23 +79,32 @@ def fidelity(
                     qacc_warmstart=jnp.asarray(data.qacc_warmstart, dtype),
                 )
             )
-        deviation, one_step = [], []
+        perturbed = [mujoco.MjData(env.mj_model) for _ in range(members)]
+        for p in perturbed:
+            p.qpos[:], p.qvel[:] = data.qpos, data.qvel
+        rng_perturb = np.random.default_rng(10_000 + seed)
+        deviation, one_step, own = [], [], []
         for a in actions:
             start = state.physics
             one.qpos[:], one.qvel[:] = np.asarray(start.qpos), np.asarray(start.qvel)
             one.qacc_warmstart[:] = np.asarray(start.qacc_warmstart)
             _, state, *_ = step(jax.random.key(0), state, jnp.asarray(a), params)
             position = np.asarray(state.physics.agent_pos)
-            for d in (data, one):
+            for d in (data, one, *perturbed):
                 d.ctrl[:] = a
                 for _ in range(10):
                     mujoco.mj_step(env.mj_model, d)
                 mujoco.mj_forward(env.mj_model, d)
+            for p in perturbed:
+                for field in (p.qpos, p.qvel):
+                    field *= 1 + rng_perturb.choice([-1.0, 1.0], field.shape) * 2.0**-24
             deviation.append(np.abs(position - data.xpos[1]).max())
             one_step.append(np.abs(position - one.xpos[1]).max())
+            own.append(max(np.abs(p.xpos[1] - data.xpos[1]).max() for p in perturbed))
         out.append(deviation)
         local.append(one_step)
-    return np.array(out), np.array(local)
+        spread.append(own)
+    return np.array(out), np.array(local), np.array(spread)
 
 
 def physics_throughput(
@@ -172,11 +186,14 @@ def main() -> None:
             f"Solver: {label}."
             + (f" Start settled for {args.settle} substeps in C." if args.settle else ""),
             "",
-            "| robot | seeds | max deviation after 10 / 20 / last steps (m) | last step, per seed (m) | one-step, max (m) |",
-            "|---|---|---|---|---|",
+            (
+                "| robot | seeds | max deviation after 10 / 20 / last steps (m) | last step, per "
+                "seed (m) | one-step, max (m) | max over steps per seed: MJX / C's own spread (m) |"
+            ),
+            "|---|---|---|---|---|---|",
         ]
         for robot in args.robots:
-            per_seed, one_step = fidelity(
+            per_seed, one_step, spread = fidelity(
                 robot, args.steps, args.seeds, solver, args.physics, args.settle, args.mjx_frame
             )
             dev = per_seed.max(axis=0)
@@ -186,7 +203,11 @@ def main() -> None:
                 + " / ".join(f"{d:.2e}" for d in marks)
                 + f" ({len(dev)} steps) | "
                 + ", ".join(f"{d:.1e}" for d in per_seed[:, -1])
-                + f" | {one_step.max():.1e} |"
+                + f" | {one_step.max():.1e} | "
+                + ", ".join(
+                    f"{d:.1e} / {c:.1e}" for d, c in zip(per_seed.max(1), spread.max(1))
+                )
+                + " |"
             )
             print(lines[-1], flush=True)
     if args.batches:
