@@ -100,9 +100,10 @@ def test_fewer_car_solver_iterations_would_change_trajectories():
 def test_mjx_tracks_mujoco_c(robot, steps, bound):
     """Env steps of random actions from the env's reset: MJX (float32) against MuJoCo C
     (float64) on the same model; the fact sheet measured about 1e-3 m for the original. The
-    free-running Car departs on some seeds after ~10-40 random-action steps, where its own
-    dynamics amplify float32 rounding at a contact event (C started from MJX's state does
-    the same; benchmarks/RESULTS.md); `test_mjx_car_steps_agree_with_mujoco_c` covers more."""
+    free-running float32 Car departs on some seeds after ~10-40 random-action steps, where its
+    dynamics amplify MJX's float32 errors (C's own spread under float32-sized perturbations
+    stays ~1e-6 m there; benchmarks/RESULTS.md); `test_mjx_car_steps_agree_with_mujoco_c` and
+    `test_mjx_car_in_float64_tracks_c_within_cs_own_spread` cover more."""
     env, params, reset, step = zone(robot)
     rng = np.random.default_rng(1)
     _, state = reset(jax.random.key(0), params)

@@ -79,6 +79,11 @@ class Physics:
         backend: "jax" (MJX's JAX implementation, any device) or "warp" (MuJoCo Warp
             through MJX: a CUDA GPU, or a CPU where warp-lang has its CPU compiler).
 
+    Attributes:
+        c_contact_frame: whether capsule-plane contacts are traced with MuJoCo C's frame (backend
+            "jax" and a model with such pairs); set it False before tracing for MJX's own frame
+            (A/B comparisons only).
+
     Raises:
         RuntimeError: backend "jax", a model with capsule-plane contacts, and an MJX whose
             collider table is not laid out as `contact_frame` expects.
