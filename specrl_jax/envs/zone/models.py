@@ -21,11 +21,12 @@ import numpy as np
 class Solver:
     """Solver settings of the physics model; the default is MuJoCo's (the original's).
 
-    `cone` is the friction cone, "pyramidal" (the original's) or "elliptic". MJX orients the
-    tangent axes of a capsule-plane contact along the plane's axes, MuJoCo C along the capsule;
-    a pyramidal cone is not rotation-invariant, so the two solve different contact problems for
-    the Ant's feet, while an elliptic cone with isotropic friction is the same problem in both
-    (benchmarks/zone_contact_diff.py).
+    `cone` is the friction cone, "pyramidal" (the original's) or "elliptic". For capsules within
+    30 degrees of the floor normal (the Ant's feet) MJX's own collider orients the contact's
+    tangents along world y, MuJoCo C along the capsule; a pyramidal cone is not
+    rotation-invariant, so the contact problems would differ. The default `physics="jax"` traces
+    these contacts with C's frame (`contact_frame.py`); MuJoCo Warp keeps its own. An elliptic
+    cone with isotropic friction is the same problem under either frame.
     """
 
     iterations: int = 100
