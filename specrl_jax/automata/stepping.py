@@ -109,7 +109,8 @@ def _unpack(word: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array
 def _from_planes(planes: jax.Array, q: jax.Array
                  ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
     """The outcome of state q from its column's bit-planes uint32[K] (`pack_step_planes`)."""
-    bits = [(planes[k] >> q.astype(jnp.uint32)) & 1 for k in range(planes.shape[-1])]
+    shift = jnp.asarray(q).astype(jnp.uint32)
+    bits = [(planes[..., k] >> shift) & 1 for k in range(planes.shape[-1])]
     # unrolled rather than a reduction over K, so that the step stays one elementwise kernel
     q_next = sum(bits[k].astype(jnp.int32) << k for k in range(len(bits) - 3))
     return (q_next.astype(jnp.int32),) + tuple(b == 1 for b in bits[-3:])

@@ -131,24 +131,25 @@ MAX_PLANE_STATES = 32
 
 
 def pack_step_planes(step_table: np.ndarray) -> np.ndarray:
-    """uint32[W, K]: a packed `step_table` int32[S, W] turned into bit-planes over the states.
+    """uint32[..., W, K]: a packed `step_table` int32[..., S, W] turned into bit-planes over the
+    states (any leading axes, e.g. a stack).
 
     Bit q of `planes[c, k]` is bit k of the outcome of state q on column c: first the
     ceil(log2 S) bits of the next state, then accepted, success, violation (K = those + 3). A
     step then reads one row by column alone and shifts it by q, so the state is only read
     elementwise and XLA can update a loop-carried state in place, in the kernel that computes
-    it (a gather indexed by q cannot). Only for S <= 32; more states give [W, 0] and the step
-    reads `step_table` instead.
+    it (a gather indexed by q cannot). Only for S <= 32; more states give [..., W, 0] and the
+    step reads `step_table` instead.
     """
-    num_states, width = step_table.shape
+    *lead, num_states, width = step_table.shape
     if num_states > MAX_PLANE_STATES:
-        return np.zeros((width, 0), np.uint32)
+        return np.zeros((*lead, width, 0), np.uint32)
     words = step_table.astype(np.int64)
     state_bits = max(1, (num_states - 1).bit_length())
     fields = [((words & STATE_MASK) >> k) & 1 for k in range(state_bits)]
     fields += [(words & flag) != 0 for flag in (ACCEPTED_BIT, SUCCESS_BIT, VIOLATION_BIT)]
     shifts = np.arange(num_states, dtype=np.uint64)[:, None]
-    planes = [(field.astype(np.uint64) << shifts).sum(axis=0) for field in fields]
+    planes = [(field.astype(np.uint64) << shifts).sum(axis=-2) for field in fields]
     return np.stack(planes, axis=-1).astype(np.uint32)
 
 
@@ -319,5 +320,5 @@ def stack(specs: Sequence[CompiledSpec]) -> CompiledSpec:
     out["step_table"] = np.stack([
         pack_step_table({name: out[name][i] for name in _STORED}) for i in range(len(specs))])
     out["symbol_of_code"] = np.stack([symbol_of_code(alphabet)] * len(specs))
-    out["step_planes"] = np.stack([pack_step_planes(table) for table in out["step_table"]])
+    out["step_planes"] = pack_step_planes(out["step_table"])
     return CompiledSpec(**jax.device_put(out))

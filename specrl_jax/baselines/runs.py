@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import serialization
 
+from specrl_jax.automata.tensors import pack_step_planes
 from specrl_jax.baselines.ppo.train import RunnerState, Trainer
 
 CHECKPOINT = "checkpoint.msgpack"
@@ -36,9 +37,21 @@ def save_checkpoint(path: str | os.PathLike, runner: RunnerState) -> None:
 def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerState:
     """Read a checkpoint written by `save_checkpoint` into the structure of `template`."""
     raw = template.replace(key=jax.random.key_data(template.key))
-    restored = serialization.from_bytes(jax.device_get(raw), Path(path).read_bytes())
+    stored = add_derived_spec_fields(serialization.msgpack_restore(Path(path).read_bytes()))
+    restored = serialization.from_state_dict(jax.device_get(raw), stored)
     restored = jax.tree.map(lambda t, x: jax.device_put(np.asarray(x), t.sharding), raw, restored)
     return restored.replace(key=jax.random.wrap_key_data(restored.key))
+
+
+def add_derived_spec_fields(state: Any) -> Any:
+    """A checkpoint's state dict with `step_planes` derived from `step_table` wherever a spec
+    lacks it: checkpoints written before specs carried the planes still resume."""
+    if not isinstance(state, dict):
+        return state
+    state = {name: add_derived_spec_fields(value) for name, value in state.items()}
+    if "step_table" in state and "step_planes" not in state:
+        state["step_planes"] = pack_step_planes(np.asarray(state["step_table"]))
+    return state
 
 
 def _rows(metrics: dict[str, Any], num: int, summarise: Callable) -> list[dict[str, float]]:

@@ -189,6 +189,35 @@ def test_step_planes_cover_up_to_32_states():
             assert (bits[..., state_bits + k] == (table >> (28 + k)) & 1).all()
 
 
+@pytest.mark.parametrize("num_states", [31, 32, 33])
+def test_step_reads_the_same_outcome_from_planes_and_words(num_states):
+    """`step` on random packed words of S states: the bit-plane path (S <= 32; the shift by
+    q = 31 uses the top bit) and the word path give every word's outcome; a plain int state
+    works on both."""
+    from specrl_jax.automata.tensors import pack_step_planes
+
+    spec = compile_spec("F a", PROPS, zero_or_one(4))
+    num_columns = spec.step_table.shape[-1]
+    rng = np.random.default_rng(num_states)
+    table = rng.integers(0, num_states, (num_states, num_columns)).astype(np.int32)
+    table |= rng.integers(0, 8, table.shape).astype(np.int32) << 28
+    planes = pack_step_planes(table)
+    assert planes.shape[-1] == (0 if num_states > 32 else (num_states - 1).bit_length() + 3)
+    with_planes = spec.replace(step_table=jnp.asarray(table), step_planes=jnp.asarray(planes))
+    words_only = with_planes.replace(step_planes=with_planes.step_planes[:, :0])
+    labels = np.asarray(spec.alphabet)
+    qs, rows = np.meshgrid(np.arange(num_states), np.arange(len(labels)), indexing="ij")
+    qs, rows = qs.ravel(), rows.ravel()
+    want = (table[qs, rows] & ((1 << 28) - 1),) + tuple(
+        (table[qs, rows] >> bit) & 1 == 1 for bit in (28, 29, 30))
+    for variant in (with_planes, words_only):
+        got = jax.jit(jax.vmap(step, (None, 0, 0, None)))(variant, qs, labels[rows], False)
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(np.asarray(g), w)
+        q, *_ = step(variant, num_states - 1, labels[1], False)
+        assert int(q) == table[num_states - 1, 1] & ((1 << 28) - 1)
+
+
 def test_labels_wider_than_an_int32_code():
     """33 propositions: no code table, too wide for integer codes; the empty label, a single
     proposition and one past bit 31 each read their own symbol."""

@@ -230,6 +230,21 @@ def test_resume_gives_identical_continuation(tmp_path, monkeypatch):
     assert json.loads((tmp_path / "a" / "config.json").read_text())["ppo"]["num_envs"] == 4
 
 
+def test_checkpoints_without_step_planes_still_load():
+    """A state dict written before specs carried `step_planes` (here: two stacked specs, as
+    in a runner's per-env task states) gets them derived from `step_table` on load."""
+    from flax import serialization
+
+    from specrl_jax.automata import compile_spec, stack, zero_or_one
+
+    specs = stack([compile_spec(f, ("a", "b"), zero_or_one(2)) for f in ("F a", "!b U a")])
+    old = serialization.to_state_dict(jax.device_get(specs))
+    del old["step_planes"]
+    loaded = serialization.from_state_dict(specs, runs.add_derived_spec_fields({"env": old})["env"])
+    for a, b in zip(jax.tree.leaves(specs), jax.tree.leaves(loaded)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
 SHARDED = textwrap.dedent(
     """
     import sys, jax, numpy as np

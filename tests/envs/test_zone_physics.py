@@ -204,6 +204,8 @@ def test_mjx_car_in_float64_tracks_c_within_cs_own_spread():
             worst.append((deviation, spread))
     worst = np.array(worst)
     assert (worst[:, 0] <= 3 * worst[:, 1] + 1e-6).all(), worst
+
+
 def test_solver_cone_is_validated():
     assert 'cone="elliptic"' in Solver(cone="elliptic").option()
     with pytest.raises(ValueError, match="cone"):
@@ -317,7 +319,7 @@ def test_mjx_ant_tracks_mujoco_c():
     """From the env's reset, MJX (float32, C's contact frame) against MuJoCo C (float64) on the
     same model under random actions, 4 seeds. Against the classic RK4 on C's forward dynamics
     (the scheme MJX implements, see `classic_rk4_substep`), 10 env steps (1 s): torso within
-    1e-4 m, joints within 1e-3 rad (measured 2e-5 m, 1.3e-4 rad on 6 seeds). Against MuJoCo C
+    1e-4 m, joints within 1e-3 rad (measured offline: 2e-5 m, 1.3e-4 rad on 6 seeds). Against MuJoCo C
     4.0's own RK4 step, 3 env steps: torso within 2e-4 m, joints within 5e-4 rad (measured 2e-5
     m, 4e-5 rad; MJX's own contact frame is off by 7e-4 m and 3e-3 rad after one step); C 4.0's
     RK4 departs from the classic one by ~1e-2 m within 10 steps (benchmarks/RESULTS.md)."""

@@ -60,13 +60,11 @@ def _plane_capsule_one(
     normal, axis = plane_mat[:, 2], cap_mat[:, 2]
     radius, half_length = cap_size[0], cap_size[1]
     tangent = axis - normal * jnp.dot(normal, axis)
-    norm = jnp.sqrt(jnp.dot(tangent, tangent))
-    degenerate = norm < MIN_NORM
-    tangent = jnp.where(
-        degenerate,
-        jnp.array([1.0, 0.0, 0.0], tangent.dtype),
-        tangent / jnp.where(degenerate, 1.0, norm),
-    )
+    squared = jnp.dot(tangent, tangent)
+    degenerate = squared < MIN_NORM**2
+    # the square root only of a safe value, so that gradients stay finite at an upright capsule
+    norm = jnp.sqrt(jnp.where(degenerate, 1.0, squared))
+    tangent = jnp.where(degenerate, jnp.array([1.0, 0.0, 0.0], tangent.dtype), tangent / norm)
     frame = jnp.stack([normal, tangent, jnp.cross(normal, tangent)])
     ends = cap_pos + jnp.stack([axis, -axis]) * half_length
     dist = (ends - plane_pos) @ normal - radius

@@ -9,7 +9,9 @@ runs under a custom batching rule that flattens any nesting of `vmap`s into one 
 and sizes the buffer to it.
 
 MJX-JAX traces capsule-floor contacts (the Ant's legs and feet) with MuJoCo C's contact frame
-(`contact_frame.py`); MuJoCo Warp does its own collision and keeps MJX's frame.
+(`contact_frame.py`); MuJoCo Warp does its own collision and keeps MJX's frame. A model traced
+with MJX's own frame (`c_contact_frame` False, for A/B comparisons) takes no lock, so tracing it
+on another thread while a C-frame trace runs would see C's frame.
 """
 
 from __future__ import annotations
