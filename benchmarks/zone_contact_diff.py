@@ -14,7 +14,7 @@ With `--c-frame`, MJX gets MuJoCo C's plane-capsule contact frame (specrl_jax's
 without it MJX 3.17's own collider runs. `--one-step STEPS` instead measures the per-env-step
 error of MJX (MJX's frame, C's frame, elliptic cone) and of the elliptic cone in C, from C states.
 `--integrator STEPS` compares one physics substep from C states: MJX (C's frame) against MuJoCo
-C's `mj_step` and against the classic RK4 (`classic_rk4`) evaluated with C's `mj_forward`, for
+C's `mj_step` and against the classic RK4 (`classic_rk4_step`) evaluated with C's `mj_forward`, for
 the Ant's RK4 and, as a control, Euler.
 
 Usage: python benchmarks/zone_contact_diff.py [--cone pyramidal|elliptic] [--states 3]
@@ -36,6 +36,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
+from specrl_jax.envs.zone.c_reference import classic_rk4_step
 from specrl_jax.envs.zone.contact_frame import c_contact_frame
 from specrl_jax.envs.zone.models import Solver, load_model
 
@@ -161,29 +162,10 @@ def one_step(settle: int, steps: int, seeds: int, iterations: int) -> None:
               f"{np.median(body):9.2e}")
 
 
-def classic_rk4(model: mujoco.MjModel, data: mujoco.MjData) -> None:
-    """One step of the classic RK4 (tableau A = diag(1/2, 1/2, 1), B = (1, 2, 2, 1) / 6) on
-    MuJoCo C's `mj_forward`, in place: MJX's scheme and MuJoCo 2.3's `mj_RungeKutta`."""
-    h, b = model.opt.timestep, np.array([1, 2, 2, 1]) / 6
-    mujoco.mj_forward(model, data)
-    qpos, qvel = data.qpos.copy(), data.qvel.copy()
-    vels, accs = [qvel], [data.qacc.copy()]
-    for weight in (0.5, 0.5, 1.0):
-        data.qpos[:] = qpos
-        mujoco.mj_integratePos(model, data.qpos, weight * vels[-1], h)
-        data.qvel[:] = qvel + weight * h * accs[-1]
-        mujoco.mj_forward(model, data)
-        vels.append(data.qvel.copy())
-        accs.append(data.qacc.copy())
-    data.qpos[:] = qpos
-    mujoco.mj_integratePos(model, data.qpos, b @ np.array(vels), h)
-    data.qvel[:] = qvel + h * (b @ np.array(accs))
-
-
 def integrator(settle: int, steps: int, seeds: int) -> None:
     """One substep from C states (the original's model, `steps` random controls per seed after
     `settle` substeps): max and median |qpos difference| of MJX (C's frame) against C's
-    `mj_step` and against `classic_rk4`, with RK4 and with Euler."""
+    `mj_step` and against `classic_rk4_step`, with RK4 and with Euler."""
     print(f"\none substep from {seeds * steps} C states, Newton 100/50, float64: max / median "
           "|qpos difference|")
     for name in ("RK4", "EULER"):
@@ -208,7 +190,7 @@ def integrator(settle: int, steps: int, seeds: int) -> None:
                         d.qpos[:], d.qvel[:], d.ctrl[:] = data.qpos, data.qvel, data.ctrl
                     x = np.asarray(step(mjx.put_data(model, own)).qpos)
                     mujoco.mj_step(model, own)
-                    classic_rk4(model, classic)
+                    classic_rk4_step(model, classic)
                     diffs.append([np.abs(x - own.qpos).max(), np.abs(x - classic.qpos).max(),
                                   np.abs(classic.qpos - own.qpos).max()])
         diffs = np.array(diffs)

@@ -16,6 +16,7 @@ from mujoco import mjx
 from mujoco.mjx._src import collision_driver, collision_primitive
 
 from specrl_jax.envs.zone import contact_frame, make_zone
+from specrl_jax.envs.zone.c_reference import classic_rk4_step
 from specrl_jax.envs.zone.config import DEFAULT_SOLVERS, level_config
 from specrl_jax.envs.zone.models import ROBOTS, Solver, load_model, start_height
 from specrl_jax.envs.zone.physics import Physics
@@ -295,30 +296,10 @@ def test_mjx_ant_contact_accelerations_agree_with_c():
             assert error > 0.05, error
 
 
-def classic_rk4_substep(model: mujoco.MjModel, data: mujoco.MjData) -> None:
-    """One classic RK4 step (tableau A = diag(1/2, 1/2, 1), B = (1, 2, 2, 1) / 6) on MuJoCo C's
-    forward dynamics, in place: the scheme of MJX 3.17 and of MuJoCo 2.3's `mj_RungeKutta`.
-    MuJoCo C 4.0's RK4 step departs from it by 1e-6 to 2e-5 in qpos per substep on the Ant."""
-    a, b, h = (0.5, 0.5, 1.0), np.array([1, 2, 2, 1]) / 6, model.opt.timestep
-    mujoco.mj_forward(model, data)
-    qpos, qvel = data.qpos.copy(), data.qvel.copy()
-    vels, accs = [qvel], [data.qacc.copy()]
-    for weight in a:
-        data.qpos[:] = qpos
-        mujoco.mj_integratePos(model, data.qpos, weight * vels[-1], h)
-        data.qvel[:] = qvel + weight * h * accs[-1]
-        mujoco.mj_forward(model, data)
-        vels.append(data.qvel.copy())
-        accs.append(data.qacc.copy())
-    data.qpos[:] = qpos
-    mujoco.mj_integratePos(model, data.qpos, b @ np.array(vels), h)
-    data.qvel[:] = qvel + h * (b @ np.array(accs))
-
-
 def test_mjx_ant_tracks_mujoco_c():
     """From the env's reset, MJX (float32, C's contact frame) against MuJoCo C (float64) on the
     same model under random actions, 4 seeds. Against the classic RK4 on C's forward dynamics
-    (the scheme MJX implements, see `classic_rk4_substep`), 10 env steps (1 s): torso within
+    (the scheme MJX implements, see `classic_rk4_step`), 10 env steps (1 s): torso within
     1e-4 m, joints within 1e-3 rad (measured offline: 2e-5 m, 1.3e-4 rad on 6 seeds). Against MuJoCo C
     4.0's own RK4 step, 3 env steps: torso within 2e-4 m, joints within 5e-4 rad (measured 2e-5
     m, 4e-5 rad; MJX's own contact frame is off by 7e-4 m and 3e-3 rad after one step); C 4.0's
@@ -336,7 +317,7 @@ def test_mjx_ant_tracks_mujoco_c():
             _, state, *_ = step(jax.random.key(0), state, jnp.asarray(a), params)
             c_rk4.ctrl[:] = c_own.ctrl[:] = a
             for _ in range(10):
-                classic_rk4_substep(env.mj_model, c_rk4)
+                classic_rk4_step(env.mj_model, c_rk4)
                 mujoco.mj_step(env.mj_model, c_own)
                 contacts = max(contacts, c_own.ncon)
             torso, qpos = np.asarray(state.physics.agent_pos), np.asarray(state.physics.qpos)
