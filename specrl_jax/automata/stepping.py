@@ -116,6 +116,15 @@ def _from_planes(planes: jax.Array, q: jax.Array
     return (q_next.astype(jnp.int32),) + tuple(b == 1 for b in bits[-3:])
 
 
+def _outcome(spec: CompiledSpec, which: tuple, q: jax.Array, column: jax.Array
+             ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """State q's outcome on `column`, from the bit-planes when the spec has them (<= 32 states),
+    else from the packed words; `which` indexes the spec in a stack (`()` for one spec)."""
+    if spec.step_planes.shape[-1]:
+        return _from_planes(spec.step_planes[(*which, column)], q)
+    return _unpack(spec.step_table[(*which, q, column)])
+
+
 def step(
     spec: CompiledSpec, q: jax.Array, props: jax.Array, take_epsilon: jax.Array
 ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
@@ -136,9 +145,7 @@ def step(
     """
     column = _column(spec.alphabet, spec.symbol_of_code, spec.epsilon.shape[-1], props,
                      take_epsilon)
-    if spec.step_planes.shape[-1]:
-        return _from_planes(spec.step_planes[column], q)
-    return _unpack(spec.step_table[q, column])
+    return _outcome(spec, (), q, column)
 
 
 def step_in_batch(
@@ -160,9 +167,7 @@ def step_in_batch(
     """
     column = _column(specs.alphabet[0], specs.symbol_of_code[0], specs.epsilon.shape[-1],
                      props, take_epsilon)
-    if specs.step_planes.shape[-1]:
-        return _from_planes(specs.step_planes[spec_id, column], q)
-    return _unpack(specs.step_table[spec_id, q, column])
+    return _outcome(specs, (spec_id,), q, column)
 
 
 def step_checked(

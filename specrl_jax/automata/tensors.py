@@ -217,10 +217,7 @@ def compile_spec(
         if use_cache:
             cache.save(key, arrays)
     _warn_search(arrays, max_sequences, max_length)
-    arrays = {name: np.asarray(arrays[name]) for name in _STORED}
-    arrays["step_table"] = pack_step_table(arrays)
-    arrays["symbol_of_code"] = symbol_of_code(alphabet)
-    arrays["step_planes"] = pack_step_planes(arrays["step_table"])
+    arrays = _with_derived({name: np.asarray(arrays[name]) for name in _STORED})
     # device_put is a plain copy; jnp.asarray would dispatch (and compile) one op per shape
     return CompiledSpec(**jax.device_put(arrays))
 
@@ -253,6 +250,22 @@ def _build(formula, propositions, alphabet, max_sequences, max_length) -> dict[s
     }
 
 
+def _with_derived(stored: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """`stored` (the `_STORED` fields of one spec, or of a stack along a leading axis) with the
+    `_DERIVED` fields added: `step_table`, `symbol_of_code`, `step_planes`."""
+    out = dict(stored)
+    if stored["delta"].ndim == 3:  # a stack: the per-spec tables, one shared alphabet
+        out["step_table"] = np.stack([
+            pack_step_table({name: stored[name][i] for name in _STORED})
+            for i in range(stored["delta"].shape[0])])
+        out["symbol_of_code"] = np.stack(
+            [symbol_of_code(stored["alphabet"][0])] * stored["delta"].shape[0])
+    else:
+        out["step_table"] = pack_step_table(stored)
+        out["symbol_of_code"] = symbol_of_code(stored["alphabet"])
+    out["step_planes"] = pack_step_planes(out["step_table"])
+    return out
+
 
 def _warn_search(arrays: dict[str, np.ndarray], max_sequences: int, max_length: int) -> None:
     """The warnings of an incomplete candidate search, built or loaded from the cache alike."""
@@ -266,6 +279,7 @@ def _warn_search(arrays: dict[str, np.ndarray], max_sequences: int, max_length: 
     if dropped:
         warnings.warn(f"{dropped} candidate sequences dropped (over max_length={max_length} "
                       f"or max_sequences={max_sequences} per state)", stacklevel=3)
+
 
 # per field: which axes are padded, to which common size (by axis letter), and with what value
 _PAD = {
@@ -317,8 +331,4 @@ def stack(specs: Sequence[CompiledSpec]) -> CompiledSpec:
                 arr[extra] = extra[:, None]
             padded.append(arr)
         out[name] = np.stack(padded)
-    out["step_table"] = np.stack([
-        pack_step_table({name: out[name][i] for name in _STORED}) for i in range(len(specs))])
-    out["symbol_of_code"] = np.stack([symbol_of_code(alphabet)] * len(specs))
-    out["step_planes"] = pack_step_planes(out["step_table"])
-    return CompiledSpec(**jax.device_put(out))
+    return CompiledSpec(**jax.device_put(_with_derived(out)))
