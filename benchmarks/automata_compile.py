@@ -1,10 +1,11 @@
 """Compile every formula of the paper's spec tables: cold (empty disk cache) and from the cache.
 
 Also reports the bytes of each compiled LetterWorld spec, and with --gpu-step the cost of the
-automaton step inside a LetterWorld step at a large batch, next to a table-free consumer of the
-label (what any extra per-env kernel costs), with the kernels per loop iteration.
+automaton step inside three kinds of LetterWorld step at a large batch (see `gpu_step`), next to
+a table-free consumer of the label (what any extra per-env kernel costs), with the kernels per
+loop iteration.
 
-    python benchmarks/automata_compile.py [--gpu-step --batch 65536 --unroll 1 2]
+    python benchmarks/automata_compile.py [--gpu-step --batch 65536 --steps 300 --unroll 1 2]
 """
 
 from __future__ import annotations
@@ -104,64 +105,82 @@ def gpu_step(batch: int, steps: int, repeats: int, unrolls: list[int]) -> None:
 
     import specrl_jax
     from specrl_jax.automata import compile_spec, stack, step_in_batch
+    from specrl_jax.envs.wrappers import batch as batched_env
 
     env, params = specrl_jax.make("LetterLTL0-v0")
-    props = env.propositions
     _, formulas, _, _ = paper_cases()[0]
-    specs = stack([compile_spec(f, props, np.asarray(env.alphabet)) for f in formulas])
+    specs = stack([compile_spec(f, env.propositions, np.asarray(env.alphabet)) for f in formulas])
     spec_ids = jnp.arange(batch) % len(formulas)
-
-    # every variant reduces what it uses into the carry, so XLA cannot drop that work; the
-    # label (`info["propositions"]`) is part of a LetterWorld step's output, so the baseline
-    # consumes it too ("env"); "env, obs only" shows what computing the label itself costs.
-    # The automaton's outputs are kept per env (state, accepting-visit count), as an evaluator
-    # keeps them.
-    def env_step(state, key):
-        keys = jax.random.split(key, batch)
-        actions = jax.random.randint(key, (batch,), 0, 4)
-        obs, state, _, _, _, info = jax.vmap(env.step, (0, 0, 0, None))(keys, state, actions, params)
-        return obs["ap"].sum(dtype=jnp.int32), state, info["propositions"]
-
-    def obs_only(carry, key):
-        state, total = carry
-        seen, state, _ = env_step(state, key)
-        return (state, total + seen), ()
-
-    def env_only(carry, key):
-        state, total = carry
-        seen, state, labels = env_step(state, key)
-        return (state, total + seen + labels.sum(dtype=jnp.int32)), ()
-
-    def with_consumer(carry, key):  # what any per-env consumer of the label costs: no table
-        state, total, q, visits = carry
-        seen, state, labels = env_step(state, key)
-        hit = labels.any(-1)
-        return (state, total + seen + labels.sum(dtype=jnp.int32), q + hit, visits + hit), ()
-
-    def with_automaton(carry, key):
-        state, total, q, visits = carry
-        seen, state, labels = env_step(state, key)
-        q, acc, _, _ = jax.vmap(step_in_batch, (None, 0, 0, 0, None))(
-            specs, spec_ids, q, labels, False)
-        return (state, total + seen + labels.sum(dtype=jnp.int32), q, visits + acc), ()
-
     key = jax.random.key(0)
-    _, state = jax.vmap(env.reset, (0, None))(jax.random.split(key, batch), params)
-    q0 = specs.init[spec_ids]
+
+    # Three LetterWorld steps: "raw" (no resets) folds the observation into a checksum, so XLA
+    # never writes it; "raw, obs out" writes it each step, as anything that uses it must;
+    # "auto-reset" is `batch(env, B)` with the opt-in map-bank resets (the fastest resetting
+    # step; the default exact resets cost ~100x more). Every variant folds labels and done flags
+    # into the checksum too. The automaton's outputs are kept per env, as an evaluator keeps them.
+    raw = lambda k, s, a: jax.vmap(env.step, (0, 0, 0, None))(jax.random.split(k, batch), s, a,
+                                                               params)
+    resetting, bank_params = batched_env(env, batch), env.with_map_bank(key, params)
+    resetting_step = lambda k, s, a: resetting.step(k, s, a, bank_params)
+    _, raw_state = jax.vmap(env.reset, (0, None))(jax.random.split(key, batch), params)
+    _, resetting_state = jax.jit(resetting.reset)(key, bank_params)
+    worlds = {"raw": (raw, raw_state, False), "raw, obs out": (raw, raw_state, True),
+              "auto-reset": (resetting_step, resetting_state, False)}
+
+    # label consumers: none; a table-free one (what any extra per-env kernel costs); the
+    # automaton from the label; the automaton from the env's symbol (what TaskEnv does)
+    def consumer(info, q):
+        hit = info["propositions"].any(-1)
+        return q + hit, hit
+
+    def from_label(info, q):
+        return jax.vmap(step_in_batch, (None, 0, 0, 0, None))(
+            specs, spec_ids, q, info["propositions"], False)[:2]
+
+    def from_symbol(info, q):
+        return jax.vmap(step_in_batch, (None, 0, 0, 0, None, 0))(
+            specs, spec_ids, q, info["propositions"], False, info["symbol"])[:2]
+
+    consumers = {"": None, "+consumer": consumer, "+automaton (label)": from_label,
+                 "+automaton (symbol)": from_symbol}
+
+    def loop(world_step, obs_out, consume):
+        def body(carry, step_key):
+            state, total, q, visits, obs = carry
+            key_action, key_step = jax.random.split(step_key)
+            actions = jax.random.randint(key_action, (batch,), 0, 4)
+            new_obs, state, _, terminated, truncated, info = world_step(key_step, state, actions)
+            total += (info["propositions"].sum(dtype=jnp.int32)
+                      + (terminated | truncated).sum(dtype=jnp.int32))
+            if obs_out:
+                obs = new_obs["ap"]
+            else:
+                total += new_obs["ap"].sum(dtype=jnp.int32)
+            if consume is not None:
+                q, hit = consume(info, q)
+                visits += hit
+            return (state, total, q, visits, obs), ()
+        return body
+
+    carry_tail = (jnp.int32(0), specs.init[spec_ids], jnp.zeros(batch, jnp.int32),
+                  jnp.zeros((batch, *env.observation_space["ap"].shape), jnp.uint8))
     keys = jax.random.split(key, steps)
-    zero = jnp.int32(0)
-    variants = {}
+    variants, outputs = {}, {}
     for unroll in unrolls:
-        scanned = lambda body, u=unroll: jax.jit(lambda c: jax.lax.scan(body, c, keys, unroll=u)[0])
-        per_env = (q0, jnp.zeros(batch, jnp.int32))
-        for name, body, arg in (
-                ("env, obs only", obs_only, (state, zero)),
-                ("env", env_only, (state, zero)),
-                ("env+consumer", with_consumer, (state, zero, *per_env)),
-                ("env+automaton", with_automaton, (state, zero, *per_env))):
-            fn = scanned(body).lower(arg).compile()
-            jax.block_until_ready(fn(arg))
-            variants[unroll, name] = (fn, arg, scan_body_kernels(fn.as_text()))
+        for world, (world_step, state, obs_out) in worlds.items():
+            for name, consume in consumers.items():
+                body = loop(world_step, obs_out, consume)
+                fn = jax.jit(lambda c, body=body, u=unroll: jax.lax.scan(body, c, keys,
+                                                                         unroll=u)[0])
+                arg = (state, *carry_tail)
+                compiled = fn.lower(arg).compile()
+                outputs[unroll, world, name] = jax.block_until_ready(compiled(arg))
+                variants[unroll, world, name] = (compiled, arg,
+                                                 scan_body_kernels(compiled.as_text()))
+    for unroll in unrolls:  # the symbol gives the label's runs
+        for world in worlds:
+            a, b = (outputs[unroll, world, f"+automaton ({k})"] for k in ("label", "symbol"))
+            assert all(bool((x == y).all()) for x, y in zip(a[2:4], b[2:4])), world
     timings = dict.fromkeys(variants, float("inf"))
     for _ in range(repeats):  # interleaved, so drifting clocks hit every variant alike
         for v, (fn, arg, _) in variants.items():
@@ -170,18 +189,12 @@ def gpu_step(batch: int, steps: int, repeats: int, unrolls: list[int]) -> None:
             timings[v] = min(timings[v], time.perf_counter() - t)
     print(f"batch {batch}, {len(formulas)} specs, {jax.devices()[0].device_kind}, "
           f"jax {jax.__version__}, best of {repeats} x {steps} steps")
-    for (unroll, name), best in timings.items():
-        per_iteration = variants[unroll, name][2] / unroll
-        print(f"unroll {unroll} {name:14s}: {batch * steps / best:.3e} steps/s, "
-              f"{1e6 * best / steps:6.2f} us/step, {per_iteration:g} kernels/step")
-    for unroll in unrolls:
-        over = timings[unroll, "env+automaton"] / timings[unroll, "env"] - 1
-        label = timings[unroll, "env"] / timings[unroll, "env, obs only"] - 1
-        extra = 1e6 * (timings[unroll, "env+automaton"] - timings[unroll, "env"]) / steps
-        floor = timings[unroll, "env+consumer"] / timings[unroll, "env"] - 1
-        print(f"unroll {unroll}: automaton overhead {100 * over:+.1f}% ({extra:.2f} us/step) over "
-              f"a step with its label; a table-free label consumer {100 * floor:+.1f}%; the label "
-              f"itself {100 * label:+.1f}% over obs only")
+    for (unroll, world, name), best in timings.items():
+        base = timings[unroll, world, ""]
+        kernels = variants[unroll, world, name][2] / unroll
+        print(f"unroll {unroll} {world + name:36s} {1e6 * best / steps:7.2f} us/step "
+              f"{1e6 * (best - base) / steps:+6.2f} us {100 * (best / base - 1):+6.1f}%  "
+              f"{kernels:g} kernels/step")
 
 
 def main() -> None:
@@ -189,9 +202,9 @@ def main() -> None:
     parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--gpu-step", action="store_true")
     parser.add_argument("--batch", type=int, default=65536)
-    parser.add_argument("--steps", type=int, default=100)
+    parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--repeats", type=int, default=20)
-    parser.add_argument("--unroll", type=int, nargs="+", default=[1, 2],
+    parser.add_argument("--unroll", type=int, nargs="+", default=[1],
                         help="lax.scan unroll factors to time the step loop under")
     args = parser.parse_args()
     if args.child:

@@ -135,8 +135,9 @@ class TaskEnv:
         propositions = jnp.where(is_epsilon, state.propositions, env_info["propositions"])
         env_terminated = ~is_epsilon & env_terminated
 
-        q_next, accepted, success, violation = automata.step(spec, state.q, propositions,
-                                                             jnp.where(is_epsilon, slot, -1))
+        q_next, accepted, success, violation = automata.step(
+            spec, state.q, propositions, jnp.where(is_epsilon, slot, -1), env_info.get("symbol")
+        )
         success = success & spec.is_finite
         reward = reward_progress(state.q, q_next, accepted, violation, is_epsilon)
         time = state.time + 1

@@ -184,3 +184,51 @@ def test_epsilon_slot_past_the_last_is_a_world_step(task):
                                         jnp.int32(state.spec.epsilon.shape[-1]))
     assert not bool(info["epsilon"]) and int(moved.env_state.time) == 1
     assert np.array_equal(np.asarray(moved.env_state.agent), [0, 1]) and int(moved.q) == 0
+
+
+class EditedInfo:
+    """An env whose step info passes through `edit`."""
+
+    def __init__(self, env, edit):
+        self.env, self.edit = env, edit
+
+    def __getattr__(self, name):
+        return getattr(self.env, name)
+
+    def step(self, *args):
+        *out, info = self.env.step(*args)
+        return (*out, self.edit(info))
+
+
+def test_env_symbol_runs_the_automaton_as_the_label_does():
+    """LetterWorld reports `info["symbol"]`, which the task layer steps from; dropping it (so
+    that the label is looked up) gives the same runs over episodes, resets and several specs."""
+    import specrl_jax
+    from specrl_jax import automata
+
+    env, params = specrl_jax.make("LetterLTL0-v0")
+    formulas = ["F a & F b", "!c U (d & F e)", "GF a & GF b", "G !f & F (g | h)"]
+    specs = automata.stack([automata.compile_spec(f, env.propositions, alphabet=env.alphabet)
+                            for f in formulas])
+
+    def run(task):
+        def body(state, key):
+            actions = jax.random.randint(key, (32,), 0, 4)
+            _, state, reward, terminated, _, info = jax.vmap(task.step, (0, 0, 0, None))(
+                jax.random.split(key, 32), state, actions, params)
+            return state, (state.q, reward, terminated, info["accepted"])
+
+        keys = jax.random.split(jax.random.key(0), 32)
+        _, state = jax.vmap(task.reset, (0, None, 0))(keys, params, jnp.arange(32) % 4)
+        return jax.jit(lambda s: jax.lax.scan(body, s, jax.random.split(keys[0], 120))[1])(state)
+
+    with_symbol = run(TaskEnv(env, specs))
+    without = run(TaskEnv(EditedInfo(env, lambda i: {"propositions": i["propositions"]}), specs))
+    for got, want in zip(with_symbol, without):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(want))
+    # the symbol is what the automaton reads: a wrong one changes the runs
+    shifted = run(TaskEnv(EditedInfo(env, lambda i: {**i, "symbol": (i["symbol"] + 1) % 13}),
+                          specs))
+    assert (np.asarray(shifted[0]) != np.asarray(with_symbol[0])).any()
+    _, reward, terminated, accepted = (np.asarray(x) for x in with_symbol)
+    assert (reward > 0).sum() > 20 and terminated.sum() > 5 and accepted.sum() > 5

@@ -81,12 +81,16 @@ def _code(bits: jax.Array) -> jax.Array:
 
 
 def _column(alphabet: jax.Array, symbol_of_code: jax.Array, num_slots: int, props: jax.Array,
-            take_epsilon) -> jax.Array:
+            take_epsilon, symbol: jax.Array | None = None) -> jax.Array:
     """int32[]: the `step_table` column of a step (symbol, unknown label, or epsilon slot; a
-    slot past the last one is a slot the state lacks, so it stays)."""
+    slot past the last one is a slot the state lacks, so it stays). `symbol`, when given, is the
+    label's alphabet row as the env reports it, and `props` is not read."""
     num_symbols, num_props = alphabet.shape
     slot = epsilon_slot(take_epsilon)
-    if symbol_of_code.shape[-1] == 1 << num_props:
+    if symbol is not None:
+        symbol = jnp.asarray(symbol, jnp.int32)
+        symbol = jnp.where((symbol >= 0) & (symbol < num_symbols), symbol, num_symbols)
+    elif symbol_of_code.shape[-1] == 1 << num_props:
         # a gather fuses with the env's own kernels; a search over the alphabet adds its own
         symbol = symbol_of_code[_code(props)].astype(jnp.int32)
     elif num_symbols <= UNROLL_MAX_SYMBOLS and num_props <= CODE_MAX_PROPS:
@@ -126,7 +130,11 @@ def _outcome(spec: CompiledSpec, which: tuple, q: jax.Array, column: jax.Array
 
 
 def step(
-    spec: CompiledSpec, q: jax.Array, props: jax.Array, take_epsilon: jax.Array
+    spec: CompiledSpec,
+    q: jax.Array,
+    props: jax.Array,
+    take_epsilon: jax.Array,
+    symbol: jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
     """One automaton step (one gather from `spec.step_planes`, or `spec.step_table` for
     automata of more than 32 states).
@@ -137,6 +145,9 @@ def step(
         props: bool[P] the label after the env step (ignored on an epsilon step).
         take_epsilon: bool[] (True = epsilon slot 0) or int32[] (slot to take, < 0 = none).
             An epsilon step consumes no label; requesting a slot the state lacks leaves q.
+        symbol: optional int32[], the row of `spec.alphabet` equal to `props`, where the env
+            reports it (`info["symbol"]`); the step then skips the label lookup (`props` is not
+            read). It must agree with `props` (`step_checked` verifies it).
 
     Returns:
         (q_next int32[], accepted bool[] (a Buchi-accepting transition was taken),
@@ -144,7 +155,7 @@ def step(
         A label outside the alphabet leaves q unchanged in this unchecked variant.
     """
     column = _column(spec.alphabet, spec.symbol_of_code, spec.epsilon.shape[-1], props,
-                     take_epsilon)
+                     take_epsilon, symbol)
     return _outcome(spec, (), q, column)
 
 
@@ -154,6 +165,7 @@ def step_in_batch(
     q: jax.Array,
     props: jax.Array,
     take_epsilon: jax.Array,
+    symbol: jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
     """`step` on spec `spec_id` of a stacked batch, reading only the word it needs.
 
@@ -163,26 +175,39 @@ def step_in_batch(
     Args:
         specs: stacked specs (`stack`), one shared alphabet.
         spec_id: int32[] which spec.
-        q, props, take_epsilon: as in `step`.
+        q, props, take_epsilon, symbol: as in `step`.
     """
     column = _column(specs.alphabet[0], specs.symbol_of_code[0], specs.epsilon.shape[-1],
-                     props, take_epsilon)
+                     props, take_epsilon, symbol)
     return _outcome(specs, (spec_id,), q, column)
 
 
 def step_checked(
-    spec: CompiledSpec, q: jax.Array, props: jax.Array, take_epsilon: jax.Array
+    spec: CompiledSpec,
+    q: jax.Array,
+    props: jax.Array,
+    take_epsilon: jax.Array,
+    symbol: jax.Array | None = None,
 ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
-    """`step` that raises (through `jax.experimental.checkify`) on a label outside the alphabet.
+    """`step` that raises (through `jax.experimental.checkify`) on a label outside the alphabet,
+    or on a `symbol` that is not the alphabet row of `props`.
 
     Use as `checkify.checkify(jax.jit(step_checked))(...)` (then `err.throw()`), or eagerly.
     """
+    labelled = epsilon_slot(take_epsilon) < 0
+    row = symbol_index(spec, props)
     checkify.check(
-        (epsilon_slot(take_epsilon) >= 0) | (symbol_index(spec, props) >= 0),
+        ~labelled | (row >= 0),
         "label {} is not an assignment of the spec's alphabet",
         props.astype(jnp.int32),
     )
-    return step(spec, q, props, take_epsilon)
+    if symbol is not None:
+        checkify.check(
+            ~labelled | (jnp.asarray(symbol, jnp.int32) == row),
+            "symbol {} is not the alphabet row {} of label {}",
+            jnp.asarray(symbol, jnp.int32), row, props.astype(jnp.int32),
+        )
+    return step(spec, q, props, take_epsilon, symbol)
 
 
 def check_labels(spec: CompiledSpec, props: np.ndarray) -> None:

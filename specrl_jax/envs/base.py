@@ -8,7 +8,9 @@ An env is a frozen, hashable config (static shapes) plus pure functions:
 `params` carries values that may vary without changing shapes (so they `vmap`); every state
 has an int32 `time` field; the horizon `params.max_steps` sets `truncated`. The world's own
 terminations are `terminated`. `info["propositions"]` is `bool[P]` in the order of
-`env.propositions`, the labelling function after the step.
+`env.propositions`, the labelling function after the step. An env that can name the row of
+`env.alphabet` equal to that label without a lookup also reports it as `info["symbol"]` (int32);
+the task layer passes it to `automata.step`, which then skips its label lookup.
 """
 
 from __future__ import annotations

@@ -115,7 +115,8 @@ class LetterWorld(Env):
     Observation: `ap` uint8[V, V, L] letter channels and `ego` uint8[V, V, 1] agent channel, the
         V x V cells centred on the agent (view cell (i, j) is world cell agent + (i, j) - V // 2).
     Action: Discrete(4), 0 up (row - 1), 1 down, 2 left, 3 right; letters are not obstacles.
-    Labels: `info["propositions"]` bool[L], the letter under the agent after the move.
+    Labels: `info["propositions"]` bool[L], the letter under the agent after the move, and
+        `info["symbol"]` int32[], its row of `alphabet`.
     Reward 0; never terminates; `truncated` at `params.max_steps`.
     State: `LetterState` (letters int8[N, N], agent int32[2], time int32).
     """
@@ -199,7 +200,7 @@ class LetterWorld(Env):
         # the view is centred on the agent, so its centre cell is `label(state)` without a
         # second read of the map
         centre = self.config.view // 2
-        info = {"propositions": obs["ap"][centre, centre].astype(bool)}
+        info = {"propositions": obs["ap"][centre, centre].astype(bool), "symbol": self.symbol(state)}
         return obs, state, jnp.zeros((), jnp.float32), jnp.asarray(False), info
 
     def observe(self, state: LetterState) -> Obs:
@@ -217,6 +218,11 @@ class LetterWorld(Env):
         """bool[L]: the letter under the agent (none on an empty cell)."""
         under = state.letters[state.agent[0], state.agent[1]]
         return under == jnp.arange(self.config.num_letters, dtype=jnp.int8)
+
+    def symbol(self, state: LetterState) -> jax.Array:
+        """int32[]: the row of `alphabet` equal to `label(state)` (0 on an empty cell, else the
+        letter index + 1), what `automata.step` takes as `symbol`."""
+        return (state.letters[state.agent[0], state.agent[1]] + 1).astype(jnp.int32)
 
     def layout(self, state: LetterState) -> dict[str, jax.Array]:
         """`letters` int32[N, N] (-1 empty, else the letter index) and `agent` int32[2] (row, col)."""

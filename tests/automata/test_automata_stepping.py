@@ -112,6 +112,22 @@ def test_symbol_index_and_checked_mode():
         check_labels(spec, np.array([[0, 1, 0, 0], [1, 1, 0, 0]], dtype=bool))
 
 
+def test_checked_mode_verifies_the_env_symbol():
+    spec = compile_spec("F a", PROPS, zero_or_one(4))
+    checked = checkify.checkify(jax.jit(step_checked))
+    err, out = checked(spec, spec.init, spec.alphabet[1], False, jnp.int32(1))
+    err.throw()
+    assert bool(out[2])
+    err, _ = checked(spec, spec.init, spec.alphabet[1], False, jnp.int32(2))
+    with pytest.raises(checkify.JaxRuntimeError, match="symbol 2 is not the alphabet row 1"):
+        err.throw()
+    err, _ = checked(spec, spec.init, spec.alphabet[1], True, jnp.int32(2))  # epsilon: unread
+    err.throw()
+    # unchecked, the step follows the symbol and does not read the label
+    assert bool(step(spec, spec.init, spec.alphabet[2], False, jnp.int32(1))[2])
+    assert not bool(step(spec, spec.init, spec.alphabet[1], False, jnp.int32(2))[2])
+
+
 def test_epsilon_moves_consume_no_label():
     spec = compile_spec("FG a", PROPS, zero_or_one(4))
     q0 = spec.init
@@ -271,5 +287,12 @@ def test_step_in_batch_with_epsilon_slots_and_unknown_labels(num_props):
     want = [_numpy_step(specs[i], q, label, slot)
             for i, q, label, slot in zip(ids, qs.tolist(), labels, slots.tolist())]
     assert got == want
+    # the same steps from the env-reported symbol: the label's row, or for an unknown label
+    # any value outside the alphabet (both ends)
+    rows = (labels[:, None, :] == alphabet[None]).all(-1)
+    symbols = np.where(rows.any(-1), rows.argmax(-1), rng.choice([-1, len(alphabet), 99], n))
+    by_symbol = jax.jit(jax.vmap(step_in_batch, (None, 0, 0, 0, 0, 0)))(
+        batch, ids, qs, labels, slots, symbols.astype(np.int32))
+    assert list(zip(*[np.asarray(x).tolist() for x in by_symbol])) == want
     moved, accepted = np.array([w[0] for w in want]) != qs, np.array([w[1] for w in want])
     assert min((moved & (slots >= 0)).sum(), (moved & (slots < 0)).sum(), accepted.sum()) > 20

@@ -71,6 +71,8 @@ def test_rollout_matches_numpy_reference(compiled):
             if letters[tuple(agent)] >= 0:
                 expected_props[letters[tuple(agent)]] = True
             np.testing.assert_array_equal(info["propositions"], expected_props)
+            assert int(info["symbol"]) == letters[tuple(agent)] + 1  # its row of env.alphabet
+            np.testing.assert_array_equal(env.alphabet[info["symbol"]], expected_props)
             reward, terminated, truncated = outs
             assert float(reward) == 0.0 and not terminated and not truncated
         np.testing.assert_array_equal(state.agent, agent)
