@@ -106,6 +106,7 @@ def gpu_step(batch: int, steps: int, repeats: int, unrolls: list[int]) -> None:
     import specrl_jax
     from specrl_jax.automata import compile_spec, stack, step_in_batch
     from specrl_jax.envs.wrappers import batch as batched_env
+    from specrl_jax.tasks import TaskEnv
 
     env, params = specrl_jax.make("LetterLTL0-v0")
     _, formulas, _, _ = paper_cases()[0]
@@ -118,14 +119,22 @@ def gpu_step(batch: int, steps: int, repeats: int, unrolls: list[int]) -> None:
     # "auto-reset" is `batch(env, B)` with the opt-in map-bank resets (the fastest resetting
     # step; the default exact resets cost ~100x more). Every variant folds labels and done flags
     # into the checksum too. The automaton's outputs are kept per env, as an evaluator keeps them.
+    # "task" is the whole task layer on the same resetting world: `TaskEnv.step` (automaton,
+    # reward, termination, spec and layout resets), timed against "auto-reset".
     raw = lambda k, s, a: jax.vmap(env.step, (0, 0, 0, None))(jax.random.split(k, batch), s, a,
                                                                params)
     resetting, bank_params = batched_env(env, batch), env.with_map_bank(key, params)
     resetting_step = lambda k, s, a: resetting.step(k, s, a, bank_params)
     _, raw_state = jax.vmap(env.reset, (0, None))(jax.random.split(key, batch), params)
     _, resetting_state = jax.jit(resetting.reset)(key, bank_params)
+    task = TaskEnv(env, specs)
+    task_step = lambda k, s, a: jax.vmap(task.step, (0, 0, 0, None))(jax.random.split(k, batch),
+                                                                       s, a, bank_params)
+    _, task_state = jax.jit(jax.vmap(task.reset, (0, None, 0)))(
+        jax.random.split(key, batch), bank_params, spec_ids)
     worlds = {"raw": (raw, raw_state, False), "raw, obs out": (raw, raw_state, True),
-              "auto-reset": (resetting_step, resetting_state, False)}
+              "auto-reset": (resetting_step, resetting_state, False),
+              "task": (task_step, task_state, False)}
 
     # label consumers: none; a table-free one (what any extra per-env kernel costs); the
     # automaton from the label; the automaton from the env's symbol (what TaskEnv does)
@@ -168,7 +177,7 @@ def gpu_step(batch: int, steps: int, repeats: int, unrolls: list[int]) -> None:
     variants, outputs = {}, {}
     for unroll in unrolls:
         for world, (world_step, state, obs_out) in worlds.items():
-            for name, consume in consumers.items():
+            for name, consume in consumers.items() if world != "task" else [("", None)]:
                 body = loop(world_step, obs_out, consume)
                 fn = jax.jit(lambda c, body=body, u=unroll: jax.lax.scan(body, c, keys,
                                                                          unroll=u)[0])
@@ -178,7 +187,7 @@ def gpu_step(batch: int, steps: int, repeats: int, unrolls: list[int]) -> None:
                 variants[unroll, world, name] = (compiled, arg,
                                                  scan_body_kernels(compiled.as_text()))
     for unroll in unrolls:  # the symbol gives the label's runs
-        for world in worlds:
+        for world in set(worlds) - {"task"}:
             a, b = (outputs[unroll, world, f"+automaton ({k})"] for k in ("label", "symbol"))
             assert all(bool((x == y).all()) for x, y in zip(a[2:4], b[2:4])), world
     timings = dict.fromkeys(variants, float("inf"))
@@ -190,7 +199,7 @@ def gpu_step(batch: int, steps: int, repeats: int, unrolls: list[int]) -> None:
     print(f"batch {batch}, {len(formulas)} specs, {jax.devices()[0].device_kind}, "
           f"jax {jax.__version__}, best of {repeats} x {steps} steps")
     for (unroll, world, name), best in timings.items():
-        base = timings[unroll, world, ""]
+        base = timings[unroll, "auto-reset" if world == "task" else world, ""]
         kernels = variants[unroll, world, name][2] / unroll
         print(f"unroll {unroll} {world + name:36s} {1e6 * best / steps:7.2f} us/step "
               f"{1e6 * (best - base) / steps:+6.2f} us {100 * (best / base - 1):+6.1f}%  "

@@ -31,6 +31,23 @@ from specrl_jax.envs.base import Obs
 from specrl_jax.envs.wrappers import select_tree
 
 
+class SpecBank:
+    """The stacked specs that task states point into by `spec_index`.
+
+    Held by `TaskState` as static metadata (compared by identity), so that a batch of task states
+    carries one int32 index per env instead of a copy of its spec's tensors.
+    """
+
+    def __init__(self, specs: Any):
+        self.specs = specs
+
+    def __hash__(self) -> int:
+        return id(self)
+
+    def __eq__(self, other: object) -> bool:
+        return self is other
+
+
 @struct.dataclass
 class TaskState:
     """The state of one task episode."""
@@ -38,14 +55,20 @@ class TaskState:
     env_state: Any  # the world's state
     obs: Obs  # last observation, returned again by an epsilon step
     propositions: jax.Array  # bool[P], last label (all False at reset)
-    spec: Any  # CompiledSpec of the episode (one spec, gathered from the batch)
-    spec_index: jax.Array  # int32[], index of `spec` in the stacked batch
+    spec_index: jax.Array  # int32[], the episode's spec in the stacked batch
     q: jax.Array  # int32[], automaton state
     time: jax.Array  # int32[], task steps so far (world steps + epsilon steps)
     steps_in_q: jax.Array  # int32[], steps since `q` last changed
     num_accepting: jax.Array  # int32[], accepting transitions taken this episode
     success: jax.Array  # bool[], the episode has succeeded (finite-horizon specs)
     violation: jax.Array  # bool[], the episode has violated the spec
+    bank: SpecBank = struct.field(pytree_node=False)  # the stacked specs (static)
+
+    @property
+    def spec(self) -> Any:
+        """The episode's `CompiledSpec`, read from the stacked batch at `spec_index` (under
+        `jit`, only the entries a caller uses are gathered)."""
+        return take_spec(self.bank.specs, self.spec_index)
 
 
 def take_spec(specs: Any, index: jax.Array) -> Any:
@@ -91,6 +114,7 @@ class TaskEnv:
         self.env = env
         self.specs = specs
         self.num_specs = num_specs(specs)
+        self._bank = SpecBank(specs)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.env, name)
@@ -103,20 +127,20 @@ class TaskEnv:
         if spec_index is None:
             spec_index = jax.random.randint(key_spec, (), 0, self.num_specs)
         obs, env_state = self.env.reset(key_env, params)
-        spec = take_spec(self.specs, spec_index)
+        spec_index = jnp.asarray(spec_index, jnp.int32)
         zero = jnp.zeros((), jnp.int32)
         state = TaskState(
             env_state=env_state,
             obs=obs,
             propositions=jnp.zeros((self.env.num_propositions,), bool),
-            spec=spec,
-            spec_index=jnp.asarray(spec_index, jnp.int32),
-            q=jnp.asarray(spec.init, jnp.int32),
+            spec_index=spec_index,
+            q=self.specs.init[spec_index].astype(jnp.int32),
             time=zero,
             steps_in_q=zero,
             num_accepting=zero,
             success=jnp.zeros((), bool),
             violation=jnp.zeros((), bool),
+            bank=self._bank,
         )
         return obs, state
 
@@ -124,9 +148,8 @@ class TaskEnv:
                   take_epsilon: jax.Array | bool = False):
         """One task step without auto-reset: `(obs, state, reward, terminated, truncated, info)`."""
         params = self.env.default_params if params is None else params
-        spec = state.spec
         slot = automata.epsilon_slot(take_epsilon)
-        is_epsilon = automata.takes_epsilon(spec, state.q, slot)
+        is_epsilon = automata.takes_epsilon(state.spec, state.q, slot)
         obs_env, env_state, _, env_terminated, _, env_info = self.env.step(
             key, state.env_state, action, params
         )
@@ -135,10 +158,11 @@ class TaskEnv:
         propositions = jnp.where(is_epsilon, state.propositions, env_info["propositions"])
         env_terminated = ~is_epsilon & env_terminated
 
-        q_next, accepted, success, violation = automata.step(
-            spec, state.q, propositions, jnp.where(is_epsilon, slot, -1), env_info.get("symbol")
+        q_next, accepted, success, violation = automata.step_in_batch(
+            self.specs, state.spec_index, state.q, propositions, jnp.where(is_epsilon, slot, -1),
+            env_info.get("symbol"),
         )
-        success = success & spec.is_finite
+        success = success & self.specs.is_finite[state.spec_index]
         reward = reward_progress(state.q, q_next, accepted, violation, is_epsilon)
         time = state.time + 1
         terminated = env_terminated | violation | success

@@ -232,3 +232,17 @@ def test_env_symbol_runs_the_automaton_as_the_label_does():
     assert (np.asarray(shifted[0]) != np.asarray(with_symbol[0])).any()
     _, reward, terminated, accepted = (np.asarray(x) for x in with_symbol)
     assert (reward > 0).sum() > 20 and terminated.sum() > 5 and accepted.sum() > 5
+
+
+def test_task_state_holds_an_index_into_the_specs_not_a_copy(task):
+    """A batch of task states carries one spec index per env; `state.spec` reads the stacked
+    specs at that index."""
+    from specrl_jax.tasks import take_spec
+
+    keys = jax.random.split(jax.random.key(7), 8)
+    _, states = jax.vmap(task.reset, in_axes=(0, None, 0))(keys, PARAMS, jnp.arange(8) % 3)
+    per_env = jax.tree.leaves(states.replace(env_state=None, obs=None))
+    assert max(leaf.size for leaf in per_env) <= 8 * task.env.num_propositions
+    want = take_spec(task.specs, jnp.arange(8) % 3)
+    for got, expected in zip(jax.tree.leaves(states.spec), jax.tree.leaves(want), strict=True):
+        np.testing.assert_array_equal(np.asarray(got), np.asarray(expected))

@@ -124,13 +124,10 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
             key_step, state, action, params, take_epsilon
         )
         # An ended episode stays frozen until the scan (the horizon) is over; a given-up one
-        # freezes before its step. The spec is left out of the select so that it stays unbatched
-        # over the episodes that share it.
-        obs, frozen, carry = select_tree(
-            done | gives_up, (obs, state.replace(spec=None), carry),
-            (obs_next, state_next.replace(spec=None), carry_next),
+        # freezes before its step.
+        obs, state, carry = select_tree(
+            done | gives_up, (obs, state, carry), (obs_next, state_next, carry_next)
         )
-        state = frozen.replace(spec=state.spec)
         trace = (state, ~done & ~gives_up) if record else None
         ended = done | gives_up | terminated | truncated
         return (obs, state, carry, ended, aborted | gives_up), trace

@@ -15,7 +15,8 @@ A policy that can find no way forward (GenZ-LTL's `NoPathsException`) gives up t
 and counts as neither success nor violation (nor in `mu_acc`).
 
 `task_state` is a `specrl_jax.tasks.TaskState`: the automaton state `q`, the episode's spec
-tensors `spec` and `spec_index`, the step count `time`, `steps_in_q` and the world's state.
+`spec` (read from the stacked batch at `spec_index`, not stored per env), the step count `time`,
+`steps_in_q` and the world's state.
 """
 
 from __future__ import annotations
