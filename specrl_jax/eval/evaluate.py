@@ -124,10 +124,12 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
             key_step, state, action, params, take_epsilon
         )
         # An ended episode stays frozen until the scan (the horizon) is over; a given-up one
-        # freezes before its step.
+        # freezes before its step. The spec index is set again after the select so that it stays
+        # unbatched over the episodes that share it (and so does every spec read through it).
         obs, state, carry = select_tree(
             done | gives_up, (obs, state, carry), (obs_next, state_next, carry_next)
         )
+        state = state.replace(spec_index=state_next.spec_index)
         trace = (state, ~done & ~gives_up) if record else None
         ended = done | gives_up | terminated | truncated
         return (obs, state, carry, ended, aborted | gives_up), trace
