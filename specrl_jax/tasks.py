@@ -20,10 +20,12 @@ success / violation / accepting visit -> reward -> termination -> auto-reset.
 
 from __future__ import annotations
 
+import hashlib
 from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from specrl_jax import automata
@@ -34,18 +36,25 @@ from specrl_jax.envs.wrappers import select_tree
 class SpecBank:
     """The stacked specs that task states point into by `spec_index`.
 
-    Held by `TaskState` as static metadata (compared by identity), so that a batch of task states
-    carries one int32 index per env instead of a copy of its spec's tensors.
+    Held by `TaskState` as static metadata, so that a batch of task states carries one int32
+    index per env instead of a copy of its spec's tensors. Banks compare by content (a digest of
+    every leaf), so task states of two `TaskEnv`s over equal specs mix and share compilations.
     """
 
     def __init__(self, specs: Any):
         self.specs = specs
+        digest = hashlib.sha256()
+        for leaf in jax.tree.leaves(specs):
+            leaf = np.asarray(leaf)
+            digest.update(f"{leaf.dtype}{leaf.shape}".encode())
+            digest.update(leaf.tobytes())
+        self.digest = digest.hexdigest()
 
     def __hash__(self) -> int:
-        return id(self)
+        return hash(self.digest)
 
     def __eq__(self, other: object) -> bool:
-        return self is other
+        return isinstance(other, SpecBank) and self.digest == other.digest
 
 
 @struct.dataclass
@@ -66,8 +75,9 @@ class TaskState:
 
     @property
     def spec(self) -> Any:
-        """The episode's `CompiledSpec`, read from the stacked batch at `spec_index` (under
-        `jit`, only the entries a caller uses are gathered)."""
+        """The episode's `CompiledSpec`, read from the stacked batch at `spec_index`. Under
+        `jit` only the entries a caller uses are gathered; called eagerly on a batch of states,
+        it copies every table once per state."""
         return take_spec(self.bank.specs, self.spec_index)
 
 
@@ -115,6 +125,10 @@ class TaskEnv:
         self.specs = specs
         self.num_specs = num_specs(specs)
         self._bank = SpecBank(specs)
+        # the env's symbol is a row of its own alphabet: usable only where the specs' rows are
+        # the same assignments in the same order (else the step looks the label up)
+        self._symbol_is_spec_row = bool(
+            np.array_equal(np.asarray(specs.alphabet[0]), np.asarray(env.alphabet)))
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.env, name)
@@ -160,7 +174,7 @@ class TaskEnv:
 
         q_next, accepted, success, violation = automata.step_in_batch(
             self.specs, state.spec_index, state.q, propositions, jnp.where(is_epsilon, slot, -1),
-            env_info.get("symbol"),
+            env_info.get("symbol") if self._symbol_is_spec_row else None,
         )
         success = success & self.specs.is_finite[state.spec_index]
         reward = reward_progress(state.q, q_next, accepted, violation, is_epsilon)

@@ -246,3 +246,31 @@ def test_task_state_holds_an_index_into_the_specs_not_a_copy(task):
     want = take_spec(task.specs, jnp.arange(8) % 3)
     for got, expected in zip(jax.tree.leaves(states.spec), jax.tree.leaves(want), strict=True):
         np.testing.assert_array_equal(np.asarray(got), np.asarray(expected))
+
+
+def test_specs_over_a_reordered_alphabet_read_the_label():
+    """The env's symbol is a row of its own alphabet; specs compiled over the same assignments
+    in another order must not take it as theirs (the step looks the label up instead)."""
+    import specrl_jax
+    from specrl_jax import automata
+
+    env, params = specrl_jax.make("LetterLTL0-v0")
+    letters = np.full((7, 7), -1, np.int8)
+    letters[0, 1] = 0  # a, right of the agent
+    _, world = env.reset_to(jax.random.key(0), {"letters": letters, "agent": np.zeros(2, np.int32)})
+    for alphabet in (np.asarray(env.alphabet), np.asarray(env.alphabet)[::-1]):
+        spec = automata.compile_spec("F a", env.propositions, alphabet=alphabet)
+        task = TaskEnv(env, automata.stack([spec]))
+        _, state = task.reset(jax.random.key(0), params, 0)
+        info = task.step_task(jax.random.key(1), state.replace(env_state=world), jnp.int32(RIGHT),
+                              params)[-1]
+        assert bool(info["success"])
+
+
+def test_task_states_of_equal_specs_share_their_structure():
+    specs = stack_specs([reach_avoid_spec(), recurrence_spec()])
+    states = [TaskEnv(TinyWorld(), s).reset(jax.random.key(0), PARAMS, 0)[1]
+              for s in (specs, stack_specs([reach_avoid_spec(), recurrence_spec()]),
+                        stack_specs([reach_avoid_spec()]))]
+    assert jax.tree.structure(states[0]) == jax.tree.structure(states[1])
+    assert jax.tree.structure(states[0]) != jax.tree.structure(states[2])

@@ -147,7 +147,8 @@ def step(
             An epsilon step consumes no label; requesting a slot the state lacks leaves q.
         symbol: optional int32[], the row of `spec.alphabet` equal to `props`, where the env
             reports it (`info["symbol"]`); the step then skips the label lookup (`props` is not
-            read). It must agree with `props` (`step_checked` verifies it).
+            read), and a value outside 0..A-1 acts as a label outside the alphabet. It must
+            agree with `props` (`step_checked` verifies it).
 
     Returns:
         (q_next int32[], accepted bool[] (a Buchi-accepting transition was taken),

@@ -10,7 +10,8 @@ has an int32 `time` field; the horizon `params.max_steps` sets `truncated`. The 
 terminations are `terminated`. `info["propositions"]` is `bool[P]` in the order of
 `env.propositions`, the labelling function after the step. An env that can name the row of
 `env.alphabet` equal to that label without a lookup also reports it as `info["symbol"]` (int32);
-the task layer passes it to `automata.step`, which then skips its label lookup.
+the task layer passes it to the automaton step (`automata.step_in_batch`), which then skips its
+label lookup.
 """
 
 from __future__ import annotations

@@ -208,8 +208,8 @@ def test_step_planes_cover_up_to_32_states():
 @pytest.mark.parametrize("num_states", [31, 32, 33])
 def test_step_reads_the_same_outcome_from_planes_and_words(num_states):
     """`step` on random packed words of S states: the bit-plane path (S <= 32; the shift by
-    q = 31 uses the top bit) and the word path give every word's outcome; a plain int state
-    works on both."""
+    q = 31 uses the top bit) and the word path give every word's outcome, from the label or
+    from the symbol; a plain int state works on both."""
     from specrl_jax.automata.tensors import pack_step_planes
 
     spec = compile_spec("F a", PROPS, zero_or_one(4))
@@ -228,8 +228,11 @@ def test_step_reads_the_same_outcome_from_planes_and_words(num_states):
         (table[qs, rows] >> bit) & 1 == 1 for bit in (28, 29, 30))
     for variant in (with_planes, words_only):
         got = jax.jit(jax.vmap(step, (None, 0, 0, None)))(variant, qs, labels[rows], False)
-        for g, w in zip(got, want):
+        by_symbol = jax.jit(jax.vmap(step, (None, 0, None, None, 0)))(
+            variant, qs, labels[0], False, rows.astype(np.int32))  # the label is not read
+        for g, s, w in zip(got, by_symbol, want, strict=True):
             np.testing.assert_array_equal(np.asarray(g), w)
+            np.testing.assert_array_equal(np.asarray(s), w)
         q, *_ = step(variant, num_states - 1, labels[1], False)
         assert int(q) == table[num_states - 1, 1] & ((1 << 28) - 1)
 
