@@ -203,10 +203,11 @@ def step_checked(
         props.astype(jnp.int32),
     )
     if symbol is not None:
+        symbol = jnp.asarray(symbol, jnp.int32)
         checkify.check(
-            ~labelled | (jnp.asarray(symbol, jnp.int32) == row),
+            ~labelled | (symbol == row),
             "symbol {} is not the alphabet row {} of label {}",
-            jnp.asarray(symbol, jnp.int32), row, props.astype(jnp.int32),
+            symbol, row, props.astype(jnp.int32),
         )
     return step(spec, q, props, take_epsilon, symbol)
 

@@ -216,13 +216,12 @@ class LetterWorld(Env):
 
     def label(self, state: LetterState) -> jax.Array:
         """bool[L]: the letter under the agent (none on an empty cell)."""
-        under = state.letters[state.agent[0], state.agent[1]]
-        return under == jnp.arange(self.config.num_letters, dtype=jnp.int8)
+        return _letter_under(state) == jnp.arange(self.config.num_letters, dtype=jnp.int8)
 
     def symbol(self, state: LetterState) -> jax.Array:
         """int32[]: the row of `alphabet` equal to `label(state)` (0 on an empty cell, else the
         letter index + 1), what `automata.step` takes as `symbol`."""
-        return (state.letters[state.agent[0], state.agent[1]] + 1).astype(jnp.int32)
+        return (_letter_under(state) + 1).astype(jnp.int32)
 
     def layout(self, state: LetterState) -> dict[str, jax.Array]:
         """`letters` int32[N, N] (-1 empty, else the letter index) and `agent` int32[2] (row, col)."""
@@ -263,6 +262,11 @@ class LetterWorld(Env):
                     f"layout[{name!r}] holds values in {value.min()}..{value.max()}; "
                     f"accepted {low}..{high}"
                 )
+
+
+def _letter_under(state: LetterState) -> jax.Array:
+    """int8[]: the letter index of the agent's cell, -1 if empty."""
+    return state.letters[state.agent[0], state.agent[1]]
 
 
 def make_letter_world(config: LetterConfig, **overrides: Any) -> tuple[LetterWorld, LetterParams]:
