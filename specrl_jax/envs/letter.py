@@ -12,7 +12,6 @@ from flax import struct
 
 from specrl_jax.envs import letter_maps
 from specrl_jax.envs.base import Env, Info, Obs
-from specrl_jax.envs.registry import register
 from specrl_jax.envs.spaces import Box, Dict, Discrete
 
 # Row/column change of actions 0 up, 1 down, 2 left, 3 right (the original's order).
@@ -290,13 +289,15 @@ def make_letter_world(config: LetterConfig, **overrides: Any) -> tuple[LetterWor
     return env, params
 
 
-register(
-    "LetterLTL0-v0",
-    lambda **kw: make_letter_world(LetterConfig(), **kw),
-    "LetterWorld, 7x7 torus, 12 letters x 2, full agent-centred view",
-)
-register(
-    "LetterLTL0-v0.partial",
-    lambda **kw: make_letter_world(LetterConfig(grid_size=15, view_size=7), **kw),
-    "LetterWorld, 15x15 torus, 12 letters x 2, 7x7 agent-centred view",
-)
+def env_ids() -> dict[str, tuple[Any, str]]:
+    """The LetterWorld registry entries (read by `envs.registry`)."""
+    return {
+        "LetterLTL0-v0": (
+            lambda **kw: make_letter_world(LetterConfig(), **kw),
+            "LetterWorld, 7x7 torus, 12 letters x 2, full agent-centred view",
+        ),
+        "LetterLTL0-v0.partial": (
+            lambda **kw: make_letter_world(LetterConfig(grid_size=15, view_size=7), **kw),
+            "LetterWorld, 15x15 torus, 12 letters x 2, 7x7 agent-centred view",
+        ),
+    }

@@ -1,57 +1,71 @@
-"""Env IDs -> constructors. Variants are registry entries over configs, never subclasses."""
+"""Env IDs -> constructors, as one explicit table. Importing a world module registers nothing:
+each world family exposes `env_ids() -> {env_id: (factory, description)}`, and the table below
+lists the families. Variants are entries over configs, never subclasses."""
 
 from __future__ import annotations
 
 import difflib
+import functools
+import importlib
 from collections.abc import Callable
 from typing import Any
 
-_REGISTRY: dict[str, tuple[Callable[..., tuple[Any, Any]], str]] = {}
+Factory = Callable[..., tuple[Any, Any]]
+
+#: world families: module path of each family's `env_ids()`, in listing order
+FAMILIES: tuple[str, ...] = (
+    "specrl_jax.envs.letter",
+    "specrl_jax.envs.zone",
+)
+
+_EXTRA: dict[str, tuple[Factory, str]] = {}
 
 
-def register(env_id: str, factory: Callable[..., tuple[Any, Any]], description: str = "") -> None:
-    """Register `factory(**overrides) -> (env, params)` under `env_id`."""
-    if env_id in _REGISTRY:
+@functools.cache
+def _family_table() -> dict[str, tuple[Factory, str]]:
+    table: dict[str, tuple[Factory, str]] = {}
+    for module in FAMILIES:
+        for env_id, entry in importlib.import_module(module).env_ids().items():
+            if env_id in table:
+                raise RuntimeError(f"env ID {env_id!r} is declared by two families")
+            table[env_id] = entry
+    return table
+
+
+def _table() -> dict[str, tuple[Factory, str]]:
+    return {**_family_table(), **_EXTRA}
+
+
+def register(env_id: str, factory: Factory, description: str = "") -> None:
+    """Add a user's own `factory(**overrides) -> (env, params)` under `env_id`."""
+    if env_id in _table():
         raise ValueError(f"env ID {env_id!r} is already registered")
-    _REGISTRY[env_id] = (factory, description)
+    _EXTRA[env_id] = (factory, description)
 
 
 def list_envs() -> list[str]:
     """All registered env IDs, sorted."""
-    _load_worlds()
-    return sorted(_REGISTRY)
+    return sorted(_table())
 
 
 def describe(env_id: str) -> str:
-    _load_worlds()
-    return _REGISTRY[_checked_id(env_id)][1]
+    return _table()[_checked_id(env_id)][1]
 
 
 def make(env_id: str, **overrides: Any) -> tuple[Any, Any]:
     """Build `(env, params)` for a registered ID; `overrides` change config or params fields."""
-    _load_worlds()
-    factory, _ = _REGISTRY[_checked_id(env_id)]
+    factory, _ = _table()[_checked_id(env_id)]
     return factory(**overrides)
 
 
 def _checked_id(env_id: str) -> str:
     if not isinstance(env_id, str):
         raise TypeError(f"env ID must be a string, got {type(env_id).__name__}")
-    if env_id not in _REGISTRY:
-        close = difflib.get_close_matches(env_id, list(_REGISTRY), n=3, cutoff=0.6)
+    table = _table()
+    if env_id not in table:
+        close = difflib.get_close_matches(env_id, list(table), n=3, cutoff=0.6)
         hint = f" Did you mean {', '.join(repr(c) for c in close)}?" if close else ""
         raise ValueError(
-            f"unknown env ID {env_id!r}.{hint} Known IDs: {', '.join(sorted(_REGISTRY))}"
+            f"unknown env ID {env_id!r}.{hint} Known IDs: {', '.join(sorted(table))}"
         )
     return env_id
-
-
-def _load_worlds() -> None:
-    """Import the world modules so that they register their IDs (idempotent)."""
-    import specrl_jax.envs.letter
-
-    try:
-        import specrl_jax.envs.zone  # noqa: F401
-    except ModuleNotFoundError as err:  # the zone world is optional until it lands
-        if err.name != "specrl_jax.envs.zone":
-            raise

@@ -1,6 +1,6 @@
 """Zone worlds: Point, Car and Ant robots among coloured zones, in MuJoCo MJX.
 
-Registers `{Point,Car,Ant}LTL{0,1,2}-v0` with the suffixes `.partial`, `.overlap` and
+Declares `{Point,Car,Ant}LTL{0,1,2}-v0` with the suffixes `.partial`, `.overlap` and
 `.partial_overlap`; `make_zone(config)` builds a custom world from a `ZoneConfig`. Options: the
 physics backend (`physics="jax"` default, or `"warp"` for MuJoCo Warp through MJX) and opt-in
 layout-bank resets (`env.with_map_bank(key, params, num_maps)`).
@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from specrl_jax.envs.registry import register
 from specrl_jax.envs.zone.config import COLOR_NAMES, ZoneConfig, level_config
 from specrl_jax.envs.zone.env import ZoneEnv, ZoneParams, ZoneState
 from specrl_jax.envs.zone.models import Solver
@@ -47,13 +46,17 @@ def _factory(robot: str, level: int, partial: bool, overlap: bool):
     return build
 
 
-for _robot in ("Point", "Car", "Ant"):
-    for _level in (0, 1, 2):
-        for _suffix, (_partial, _overlap) in SUFFIXES.items():
-            register(
-                f"{_robot}LTL{_level}-v0{_suffix}",
-                _factory(_robot, _level, _partial, _overlap),
-                f"{_robot} among 8 zones, level {_level}{_suffix}",
-            )
+def env_ids() -> dict[str, tuple[Any, str]]:
+    """The Zone registry entries (read by `envs.registry`)."""
+    return {
+        f"{robot}LTL{level}-v0{suffix}": (
+            _factory(robot, level, partial, overlap),
+            f"{robot} among 8 zones, level {level}{suffix}",
+        )
+        for robot in ("Point", "Car", "Ant")
+        for level in (0, 1, 2)
+        for suffix, (partial, overlap) in SUFFIXES.items()
+    }
+
 
 __all__ = ["COLOR_NAMES", "Solver", "ZoneConfig", "ZoneEnv", "ZoneParams", "ZoneState", "make_zone"]
