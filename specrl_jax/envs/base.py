@@ -25,12 +25,21 @@ Obs = dict[str, jax.Array]
 Info = dict[str, Any]
 StepOut = tuple[Obs, Any, jax.Array, jax.Array, jax.Array, Info]
 
+#: kinds of observation parts; a method picks its encoder for `obs[key]` by `env.obs_kinds[key]`:
+#: "grid" (uint8[V, V, C] cell channels, proposition channels last for "ap"), "lidar"
+#: (float32[P, R] bins per proposition), "range_bearing" (float32[P, ..., 4]), "image"
+#: (uint8[H, W, 3] camera pixels), "vector" (float32[E], robot sensors)
+OBS_KINDS = ("grid", "lidar", "range_bearing", "image", "vector")
+
 
 class Env(abc.ABC):
     """Base class: subclasses implement `reset_env`, `step_env`, `layout`, `reset_to`."""
 
     #: proposition names, in the order of `info["propositions"]` and `obs["ap"]`'s proposition axis.
     propositions: tuple[str, ...]
+
+    #: observation key -> its kind (one of `OBS_KINDS`); `ap` is the proposition-dependent part
+    obs_kinds: dict[str, str]
 
     @property
     @abc.abstractmethod

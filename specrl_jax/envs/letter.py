@@ -120,6 +120,8 @@ class LetterWorld(Env):
     State: `LetterState` (letters int8[N, N], agent int32[2], time int32).
     """
 
+    obs_kinds = {"ap": "grid", "ego": "grid"}
+
     def __init__(self, config: LetterConfig = LetterConfig()):
         if not isinstance(config, LetterConfig):
             raise TypeError(f"config must be a LetterConfig, got {type(config).__name__}")

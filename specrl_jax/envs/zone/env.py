@@ -65,6 +65,8 @@ class ZoneEnv(Env):
     Resets: an exact layout each time, or opt-in draws from `with_map_bank`.
     """
 
+    obs_kinds = {"ap": "lidar", "ego": "vector"}
+
     def __init__(self, config: ZoneConfig):
         if not isinstance(config, ZoneConfig):
             raise TypeError(f"config must be a ZoneConfig, got {type(config).__name__}")
