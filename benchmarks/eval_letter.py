@@ -23,7 +23,7 @@ from specrl_jax import automata, specs
 from specrl_jax.eval.evaluate import make_evaluator
 from specrl_jax.eval.metrics import EpisodeTable, per_seed_metrics
 from specrl_jax.eval.planner import oracle_policy
-from specrl_jax.eval.policy import random_policy
+from specrl_jax.tasks.policy import random_policy
 from specrl_jax.eval.report import versions
 from specrl_jax.tasks import TaskEnv
 

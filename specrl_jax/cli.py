@@ -101,7 +101,7 @@ def list_specs_command(args: argparse.Namespace) -> int:
 def make_policy(name: str, env: Any) -> Any:
     """A policy by name: `random` (any env) or `oracle` (the LetterWorld planner)."""
     from specrl_jax.eval.planner import oracle_policy
-    from specrl_jax.eval.policy import random_policy
+    from specrl_jax.tasks.policy import random_policy
 
     if name == "random":
         return random_policy(env)

@@ -22,7 +22,7 @@ from specrl_jax.automata import label_symbol, pairs
 from specrl_jax.baselines.ppo.networks import MLP, DiscreteHead, LetterCNN, PolicyOutput, critic
 from specrl_jax.baselines.ppo.rollout import StepResult
 from specrl_jax.baselines.ppo.train import PPOConfig
-from specrl_jax.eval.policy import StatefulPolicy
+from specrl_jax.tasks.policy import StatefulPolicy
 from specrl_jax.specs import CurriculumSampler, curriculum
 
 PAD, EPSILON, NULL = 0, 1, 2  # token ids before the alphabet symbols

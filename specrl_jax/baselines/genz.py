@@ -24,7 +24,7 @@ from specrl_jax.automata import label_symbol, pairs
 from specrl_jax.baselines.ppo.networks import MLP, DiscreteHead, LetterCNN, PolicyOutput, critic
 from specrl_jax.baselines.ppo.rollout import StepResult
 from specrl_jax.baselines.ppo.train import PPOConfig
-from specrl_jax.eval.policy import StatefulPolicy
+from specrl_jax.tasks.policy import StatefulPolicy
 from specrl_jax.specs import genz_tasks, sample_genz_subgoal
 
 REACH, AVOID, AGENT = 1.0, 0.5, 0.2

@@ -6,6 +6,7 @@ Each wrapper is itself an env with the same `reset`/`step` signatures, so they c
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import jax
@@ -18,6 +19,17 @@ from specrl_jax.envs.base import Obs, StepOut
 def select_tree(pred: jax.Array, on_true: Any, on_false: Any) -> Any:
     """Leaf-wise `where(pred, on_true, on_false)` for a scalar `pred` (one env)."""
     return jax.tree.map(lambda a, b: jnp.where(pred, a, b), on_true, on_false)
+
+
+def reset_done(done: jax.Array, reset: Callable[[], tuple[Obs, Any]], obs: Any, state: Any,
+               info: dict[str, Any]) -> tuple[Any, Any, dict[str, Any]]:
+    """The project's one auto-reset (same step, one env): where `done`, the obs and state of a
+    fresh episode from `reset()` replace the stepped ones; `info["final_observation"]` keeps the
+    last observation of the finished episode. Every reset is a fresh draw (never a cached state).
+    """
+    obs_reset, state_reset = reset()
+    info = {**info, "final_observation": obs}
+    return select_tree(done, obs_reset, obs), select_tree(done, state_reset, state), info
 
 
 class Wrapper:
@@ -47,14 +59,10 @@ class AutoReset(Wrapper):
         obs, state_next, reward, terminated, truncated, info = self.env.step(
             key_step, state, action, params
         )
-        done = terminated | truncated
-        obs_reset, state_reset = self.env.reset(key_reset, params)
-        final_info = dict(info)
-        info = dict(info)
-        info["final_observation"] = obs
-        info["final_info"] = final_info
-        obs = select_tree(done, obs_reset, obs)
-        state_next = select_tree(done, state_reset, state_next)
+        obs, state_next, info = reset_done(
+            terminated | truncated, lambda: self.env.reset(key_reset, params), obs, state_next,
+            {**info, "final_info": dict(info)},
+        )
         return obs, state_next, reward, terminated, truncated, info
 
 

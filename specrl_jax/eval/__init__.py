@@ -3,7 +3,7 @@
 from specrl_jax.eval.evaluate import EvalResult, evaluate, make_evaluator, record_episodes
 from specrl_jax.eval.metrics import EpisodeTable, per_seed_metrics, summarize
 from specrl_jax.eval.planner import oracle_policy
-from specrl_jax.eval.policy import StatefulPolicy, as_stateful, random_policy
+from specrl_jax.tasks.policy import StatefulPolicy, as_stateful, random_policy
 
 __all__ = [
     "EpisodeTable",

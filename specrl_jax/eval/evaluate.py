@@ -22,7 +22,7 @@ import numpy as np
 from specrl_jax import automata
 from specrl_jax.envs.wrappers import select_tree
 from specrl_jax.eval.metrics import EpisodeTable, per_seed_metrics, summarize
-from specrl_jax.eval.policy import StatefulPolicy, as_stateful, split_action
+from specrl_jax.tasks.policy import StatefulPolicy, as_stateful, split_action
 from specrl_jax.tasks import TaskEnv, TaskState
 
 
@@ -129,7 +129,7 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
         obs, state, carry = select_tree(
             done | gives_up, (obs, state, carry), (obs_next, state_next, carry_next)
         )
-        state = state.replace(spec_index=state_next.spec_index)
+        state = state.replace(task=state.task.replace(spec_index=state_next.spec_index))
         trace = (state, ~done & ~gives_up) if record else None
         ended = done | gives_up | terminated | truncated
         return (obs, state, carry, ended, aborted | gives_up), trace

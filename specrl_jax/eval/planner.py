@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 
 from specrl_jax.automata import label_symbol
-from specrl_jax.eval.policy import StatefulPolicy
+from specrl_jax.tasks.policy import StatefulPolicy
 
 UNREACHABLE = 1 << 20
 # (row, col) offsets of the actions up, down, left, right.

@@ -14,7 +14,7 @@ from eval.tiny_world import (
 )
 
 from specrl_jax.eval.evaluate import evaluate, record_episodes
-from specrl_jax.eval.policy import StatefulPolicy, random_policy, split_action
+from specrl_jax.tasks.policy import StatefulPolicy, random_policy, split_action
 from specrl_jax.tasks import TaskEnv
 
 ENV = TinyWorld()

@@ -1,0 +1,239 @@
+"""Spec sources: where the task loop gets each episode's task, and how a task follows the labels.
+
+A source is a static Python object with pure functions over a small task pytree:
+
+    task = source.reset(key, source_params, index)         # a fresh task (index: see below)
+    is_eps = source.takes_epsilon(task, slot)              # bool[], an epsilon step is taken
+    task, events = source.step(key, task, props, symbol, is_eps, source_params)
+
+`source_params` is the trainer-carried task distribution (a curriculum state) or None.
+
+- `AutomatonSource`: a stacked bank of compiled specs (evaluation, formula-conditioned training);
+  the task is the spec index and the automaton state; `index` picks the spec.
+- `SequenceSource`: reach-avoid sequences drawn from a curriculum (DeepLTL's training tasks; with
+  `continual=True`, GenZ-LTL's one-subgoal-at-a-time tasks: a completed sequence is replaced by a
+  fresh draw and the episode goes on).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from specrl_jax import automata
+from specrl_jax.specs import CurriculumSampler, ReachAvoidSequence
+
+
+class Events(NamedTuple):
+    """What a task step did (bool[] each).
+
+    `progress`: the current subgoal was achieved (automaton: left its state for a non-violating
+    one or took an accepting transition; sequence: a pair completed). `accepted`: a Buchi-accepting
+    transition. `success`: the task is complete (finite-horizon tasks). `violation`: an avoided
+    assignment occurred, or the automaton entered a state with no satisfying continuation.
+    """
+
+    progress: jax.Array
+    accepted: jax.Array
+    success: jax.Array
+    violation: jax.Array
+
+
+class SpecBank:
+    """The stacked specs that automaton tasks point into by `spec_index` (static metadata).
+
+    Banks compare by content (a digest of every leaf), so tasks of two sources over equal specs
+    mix and share compilations.
+    """
+
+    def __init__(self, specs: Any):
+        self.specs = specs
+        digest = hashlib.sha256()
+        for leaf in jax.tree.leaves(specs):
+            leaf = np.asarray(leaf)
+            digest.update(f"{leaf.dtype}{leaf.shape}".encode())
+            digest.update(leaf.tobytes())
+        self.digest = digest.hexdigest()
+
+    def __hash__(self) -> int:
+        return hash(self.digest)
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, SpecBank) and self.digest == other.digest
+
+
+@struct.dataclass
+class AutomatonTask:
+    """An episode's spec (an index into the bank) and automaton state."""
+
+    spec_index: jax.Array  # int32[]
+    q: jax.Array  # int32[]
+    bank: SpecBank = struct.field(pytree_node=False)
+
+    @property
+    def spec(self) -> Any:
+        """The episode's `CompiledSpec`, read from the bank at `spec_index` (under `jit` only the
+        entries a caller uses are gathered)."""
+        return jax.tree.map(lambda leaf: leaf[self.spec_index], self.bank.specs)
+
+
+class AutomatonSource:
+    """A stacked batch of `K` compiled specs; a reset without an index draws one uniformly."""
+
+    def __init__(self, specs: Any, alphabet: jax.Array):
+        if not hasattr(specs, "delta") or jnp.ndim(specs.delta) != 3:
+            raise ValueError(
+                "specs must be a stacked batch of CompiledSpec (delta of shape [K, S, A]); "
+                "use specrl_jax.automata.stack([...])"
+            )
+        spec_alphabet = np.asarray(specs.alphabet[0])
+        env_alphabet = np.asarray(alphabet)
+        if spec_alphabet.shape[1] != env_alphabet.shape[1]:
+            raise ValueError(
+                f"specs are over {spec_alphabet.shape[1]} propositions but the world has "
+                f"{env_alphabet.shape[1]}; compile them with the world's propositions"
+            )
+        num_symbols = int(specs.delta.shape[2])
+        if num_symbols != env_alphabet.shape[0]:
+            raise ValueError(
+                f"specs are compiled over {num_symbols} alphabet symbols but the world "
+                f"has {env_alphabet.shape[0]}; compile them with alphabet=env.alphabet"
+            )
+        self.specs = specs
+        self.bank = SpecBank(specs)
+        self.num_tasks = int(specs.delta.shape[0])
+        # the world's symbol is a row of its own alphabet: usable only where the specs' rows are
+        # the same assignments in the same order (else the step looks the label up)
+        self.symbol_is_row = bool(np.array_equal(spec_alphabet, env_alphabet))
+
+    def init_params(self) -> None:
+        return None
+
+    def reset(self, key: jax.Array, source_params: Any = None, index: jax.Array | None = None
+              ) -> AutomatonTask:
+        if index is None:
+            index = jax.random.randint(key, (), 0, self.num_tasks)
+        index = jnp.asarray(index, jnp.int32)
+        return AutomatonTask(index, self.specs.init[index].astype(jnp.int32), self.bank)
+
+    def next_index(self, task: AutomatonTask) -> jax.Array:
+        """The spec of the next episode after `task`'s: the following one in the bank."""
+        return (task.spec_index + 1) % self.num_tasks
+
+    def takes_epsilon(self, task: AutomatonTask, slot: jax.Array) -> jax.Array:
+        return automata.takes_epsilon(task.spec, task.q, slot)
+
+    def step(self, key: jax.Array, task: AutomatonTask, props: jax.Array, symbol: jax.Array | None,
+             is_epsilon: jax.Array, slot: jax.Array, source_params: Any = None
+             ) -> tuple[AutomatonTask, Events]:
+        q_next, accepted, success, violation = automata.step_in_batch(
+            self.specs, task.spec_index, task.q, props, jnp.where(is_epsilon, slot, -1),
+            symbol if self.symbol_is_row else None,
+        )
+        success = success & self.specs.is_finite[task.spec_index]
+        progress = ((q_next != task.q) | accepted) & ~violation
+        return task.replace(q=q_next), Events(progress, accepted, success, violation)
+
+
+@struct.dataclass
+class SequenceTask:
+    """A reach-avoid sequence over alphabet symbols and how far it has been followed.
+
+    Pairs `done <= i < pairs` remain; pair `i` is completed by a symbol of `reach[i]` (or by the
+    epsilon action where `epsilon[i]`) and violated by a symbol of `avoid[i]`; the last pair
+    repeats until `done == length`.
+    """
+
+    reach: jax.Array  # bool[L, A]
+    avoid: jax.Array  # bool[L, A]
+    epsilon: jax.Array  # bool[L]
+    length: jax.Array  # int32[], pairs + repeats of the last pair
+    pairs: jax.Array  # int32[], real pairs
+    done: jax.Array  # int32[], pairs completed
+    task_id: jax.Array  # int32[], the curriculum's task index (-1: sampled)
+
+    @property
+    def current(self) -> jax.Array:
+        """int32[]: the pair being followed."""
+        return jnp.minimum(self.done, self.pairs - 1)
+
+
+def symbol_sets(props: jax.Array, alphabet: jax.Array, with_empty: jax.Array | None = None) -> jax.Array:
+    """Proposition masks bool[..., P] -> symbol sets bool[..., A]: the symbols making some masked
+    proposition true (and the empty symbol where `with_empty`)."""
+    hit = jnp.any(props[..., None, :] & alphabet, axis=-1)
+    if with_empty is None:
+        return hit
+    return hit | (with_empty[..., None] & ~jnp.any(alphabet, axis=-1))
+
+
+class SequenceSource:
+    """Reach-avoid sequences from a curriculum, over a world's alphabet.
+
+    `continual=False` (DeepLTL): completing the sequence is the task's success. `continual=True`
+    (GenZ-LTL): a completed sequence counts as progress only, and a fresh one is drawn that the
+    current assignment leaves open; the episode ends on a violation or the horizon.
+    """
+
+    def __init__(self, sampler: CurriculumSampler, alphabet: jax.Array, continual: bool = False):
+        alphabet = jnp.asarray(alphabet, bool)
+        if sampler.num_props != alphabet.shape[1]:
+            raise ValueError(
+                f"the curriculum is over {sampler.num_props} propositions, the world has "
+                f"{alphabet.shape[1]}"
+            )
+        self.sampler = sampler
+        self.alphabet = alphabet
+        self.continual = continual
+        self.symbol_is_row = True
+
+    def init_params(self) -> Any:
+        return self.sampler.init()
+
+    def _draw(self, key: jax.Array, source_params: Any, current: jax.Array) -> SequenceTask:
+        seq, task_id = self.sampler.sample(key, source_params, current)
+        return self.from_sequence(seq, task_id)
+
+    def from_sequence(self, seq: ReachAvoidSequence, task_id: jax.Array | int = -1) -> SequenceTask:
+        """A task that follows `seq` from its first pair."""
+        return SequenceTask(
+            reach=symbol_sets(seq.reach, self.alphabet),
+            avoid=symbol_sets(seq.avoid, self.alphabet, seq.avoid_empty),
+            epsilon=seq.epsilon,
+            length=(seq.length + seq.repeat_last).astype(jnp.int32),
+            pairs=jnp.asarray(seq.length, jnp.int32),
+            done=jnp.zeros((), jnp.int32),
+            task_id=jnp.asarray(task_id, jnp.int32),
+        )
+
+    def reset(self, key: jax.Array, source_params: Any = None, index: Any = None) -> SequenceTask:
+        return self._draw(key, source_params, jnp.zeros(self.alphabet.shape[1], bool))
+
+    def next_index(self, task: SequenceTask) -> None:
+        return None
+
+    def takes_epsilon(self, task: SequenceTask, slot: jax.Array) -> jax.Array:
+        return (slot >= 0) & task.epsilon[task.current]
+
+    def step(self, key: jax.Array, task: SequenceTask, props: jax.Array, symbol: jax.Array | None,
+             is_epsilon: jax.Array, slot: jax.Array, source_params: Any = None
+             ) -> tuple[SequenceTask, Events]:
+        if symbol is None:
+            symbol = automata.label_symbol(self.alphabet, props)
+        current = task.current
+        violation = ~is_epsilon & task.avoid[current, symbol]
+        progress = jnp.where(is_epsilon, task.epsilon[current],
+                             ~task.epsilon[current] & task.reach[current, symbol] & ~violation)
+        task = task.replace(done=task.done + progress.astype(jnp.int32))
+        complete = task.done >= task.length
+        if self.continual:
+            fresh = self._draw(key, source_params, props)
+            task = jax.tree.map(lambda a, b: jnp.where(complete, a, b), fresh, task)
+            complete = jnp.zeros((), bool)
+        no = jnp.zeros((), bool)
+        return task, Events(progress, no, complete, violation)
