@@ -1,7 +1,8 @@
 """Gymnasium bridge: `import specrl_jax.gym` registers every specrl_jax env ID with Gymnasium.
 
 `gymnasium.make("LetterLTL0-v0")` gives a `GymEnv`: numpy observations in the original
-benchmark's layout (`env.original_observation_space`), reward 0, `info["propositions"]` a set of
+benchmark's layout (`env.original_observation_space`: a flat vector, or for camera worlds the
+original's dict with its `vision` key), reward 0, `info["propositions"]` a set of
 proposition names. `gymnasium.make_vec(env_id, num_envs=N)` gives a `GymVectorEnv` that steps the
 N worlds in one compiled call with same-step auto-reset. Both are thin host shells over the JAX
 env: they jit once, hold the only stateful key, and seed it through `reset(seed=...)`.
@@ -39,6 +40,11 @@ def _make(env_id: str, overrides: dict[str, Any]) -> tuple[Any, Any]:
             "which the Gymnasium bridge needs"
         )
     return env, params
+
+
+def _numpy(obs: Any) -> Any:
+    """An observation (an array or a dict of arrays) as numpy."""
+    return jax.tree.map(np.asarray, obs)
 
 
 def _seed_key(seed: int | None, rng: np.random.Generator) -> jax.Array:
@@ -88,7 +94,7 @@ class GymEnv(gymnasium.Env):
         self._key, key = jax.random.split(self._key)
         obs, self._state, label = self._reset(key, self.params)
         props = set() if label is None else self._names(np.asarray(label))
-        return np.asarray(obs), {"propositions": props}
+        return _numpy(obs), {"propositions": props}
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         if self._state is None:
@@ -104,7 +110,7 @@ class GymEnv(gymnasium.Env):
             (obs, reward, terminated, truncated, label)
         )
         info = {"propositions": self._names(label)}
-        return np.asarray(obs), float(reward), bool(terminated), bool(truncated), info
+        return _numpy(obs), float(reward), bool(terminated), bool(truncated), info
 
     def _names(self, label: np.ndarray) -> set[str]:
         return {name for name, on in zip(self.propositions, label) if on}
@@ -160,7 +166,7 @@ class GymVectorEnv(gymnasium.vector.VectorEnv):
             self._key = _seed_key(seed, self._np_random)
         self._key, key = jax.random.split(self._key)
         obs, self._state = self._reset(key, self.params)
-        return np.asarray(obs), {}
+        return _numpy(obs), {}
 
     def step(self, actions: Any) -> tuple:
         if self._state is None:
@@ -178,7 +184,7 @@ class GymVectorEnv(gymnasium.vector.VectorEnv):
         info = {"propositions": label, "_propositions": np.ones(self.num_envs, bool)}
         if done.any():
             info |= {"final_obs": final, "_final_obs": done}
-        return np.asarray(obs), reward.astype(np.float64), terminated, truncated, info
+        return _numpy(obs), reward.astype(np.float64), terminated, truncated, info
 
 
 def register_all() -> list[str]:

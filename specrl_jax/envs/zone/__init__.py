@@ -1,7 +1,9 @@
 """Zone worlds: Point, Car and Ant robots among coloured zones, in MuJoCo MJX.
 
-Declares `{Point,Car,Ant}LTL{0,1,2}-v0` with the suffixes `.partial`, `.overlap` and
-`.partial_overlap`; `make_zone(config)` builds a custom world from a `ZoneConfig`. Options: the
+Declares `{Point,Car,Ant}LTL{0,1,2}[Vision]-v0` with the suffixes `.partial`, `.overlap` and
+`.partial_overlap` (the `Vision` IDs add the robot camera's frame, `obs["image"]`; their
+`image_size` is 256 x 256 unless overridden); `make_zone(config)` builds a custom world from a
+`ZoneConfig` (`vision=True` for a camera). Options: the
 physics backend (`physics="jax"` default, or `"warp"` for MuJoCo Warp through MJX) and opt-in
 layout-bank resets (`env.with_map_bank(key, params, num_maps)`).
 """
@@ -28,11 +30,11 @@ def make_zone(config: ZoneConfig, **params: Any) -> tuple[ZoneEnv, ZoneParams]:
     return env, dataclasses.replace(env.default_params, **params) if params else env.default_params
 
 
-def _factory(robot: str, level: int, partial: bool, overlap: bool):
+def _factory(robot: str, level: int, partial: bool, overlap: bool, vision: bool = False):
     config_fields = {f.name for f in dataclasses.fields(ZoneConfig) if f.init}
 
     def build(**overrides: Any) -> tuple[ZoneEnv, ZoneParams]:
-        fixed = sorted(set(overrides) & {"robot", "partial", "overlap", "level"})
+        fixed = sorted(set(overrides) & {"robot", "partial", "overlap", "level", "vision"})
         if fixed:
             raise ValueError(
                 f"{fixed} are fixed by the env ID ({robot}, level {level}); pick another ID, or "
@@ -40,7 +42,7 @@ def _factory(robot: str, level: int, partial: bool, overlap: bool):
             )
         config_kw = {k: v for k, v in overrides.items() if k in config_fields}
         params_kw = {k: v for k, v in overrides.items() if k not in config_fields}
-        config = level_config(robot, level, partial, overlap, **config_kw)
+        config = level_config(robot, level, partial, overlap, vision=vision, **config_kw)
         return make_zone(config, **params_kw)
 
     return build
@@ -49,10 +51,11 @@ def _factory(robot: str, level: int, partial: bool, overlap: bool):
 def env_ids() -> dict[str, tuple[Any, str]]:
     """The Zone registry entries (read by `envs.registry`)."""
     return {
-        f"{robot}LTL{level}-v0{suffix}": (
-            _factory(robot, level, partial, overlap),
-            f"{robot} among 8 zones, level {level}{suffix}",
+        f"{robot}LTL{level}{camera}-v0{suffix}": (
+            _factory(robot, level, partial, overlap, vision=bool(camera)),
+            f"{robot} among 8 zones, level {level}{suffix}{' with camera' if camera else ''}",
         )
+        for camera in ("", "Vision")
         for robot in ("Point", "Car", "Ant")
         for level in (0, 1, 2)
         for suffix, (partial, overlap) in SUFFIXES.items()

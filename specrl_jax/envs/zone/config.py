@@ -38,6 +38,18 @@ def _per_color(value, colors: tuple[str, ...], name: str, kind: type) -> tuple:
     )
 
 
+def _image_size(value) -> tuple[int, int]:
+    size = (value, value) if isinstance(value, int) and not isinstance(value, bool) else value
+    if (
+        not isinstance(size, (tuple, list)) or len(size) != 2
+        or not all(isinstance(n, int) and not isinstance(n, bool) and 32 <= n <= 1024 for n in size)
+    ):
+        raise ValueError(
+            f"image_size must be an int or (height, width) of ints in 32..1024; got {value!r}"
+        )
+    return tuple(size)
+
+
 @dataclass(frozen=True)
 class ZoneConfig:
     """Static settings of a Zone world (everything that fixes shapes or compiled code).
@@ -65,6 +77,10 @@ class ZoneConfig:
         angular_speed: of a moving zone, rad per simulated second.
         max_tries: tries per object before a layout restart (original: 100).
         max_restarts: whole-layout attempts before giving up (original: 10000).
+        vision: add the robot camera's frame `obs["image"]`, uint8[H, W, 3] (the `Vision` IDs;
+            `camera.py`).
+        image_size: `(H, W)` of that frame in pixels, each 32 to 1024 (an int: square); the
+            original's is 256 x 256.
     """
 
     robot: str = "Point"
@@ -85,6 +101,8 @@ class ZoneConfig:
     angular_speed: float = 2.0
     max_tries: int = 100
     max_restarts: int = 10000
+    vision: bool = False
+    image_size: int | tuple[int, int] = 256
     num_bins: int = field(default=16, init=False)
 
     def __post_init__(self) -> None:
@@ -111,6 +129,7 @@ class ZoneConfig:
         if self.solver is None:
             set_("solver", DEFAULT_SOLVERS[self.robot])
         self._check_numbers()
+        set_("image_size", _image_size(self.image_size))
 
     def _check_numbers(self) -> None:
         for c, n, m, r, k in zip(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 from typing import Any
 
 import gymnasium
@@ -13,6 +14,7 @@ from flax import struct
 from specrl_jax.envs import spaces
 from specrl_jax.envs.base import Env, Info, Obs
 from specrl_jax.envs.zone import labels as labels_lib
+from specrl_jax.envs.zone.camera import ZONE_RGB, Camera, zone_height
 from specrl_jax.envs.zone.config import ZoneConfig
 from specrl_jax.envs.zone.layout import check_feasible, from_bank, sample_bank, sample_positions
 from specrl_jax.envs.zone.models import ROBOTS, load_model, start_height
@@ -56,7 +58,8 @@ class ZoneEnv(Env):
 
     Observation: `ap: float32[P, 16]`, the pseudo-LiDAR of each colour (`env.propositions`
       order); `ego: float32[E + 4]`, the robot sensors of the original in alphabetical key
-      order (Point 12, Car 24, Ant 40 values), then the wall sensor (east, south, west, north).
+      order (Point 12, Car 24, Ant 40 values), then the wall sensor (east, south, west, north);
+      with `config.vision`, `image: uint8[H, W, 3]`, the robot camera's RGB frame (`camera.py`).
     Action: `float32[2]` (Point: thrust, yaw servo; Car: wheel torques) or `float32[8]` (Ant
       joint torques), clipped to [-1, 1]; 10 physics substeps per step.
     Labels: colour p holds iff the agent body is within the radius of a zone of colour p.
@@ -91,6 +94,13 @@ class ZoneEnv(Env):
         self._alphabet = labels_lib.alphabet(config)
         self._read_robot_sensors = robot_sensor_reader(self.mj_model, self.robot)
         self._original_index = self._original_order()
+        self.camera = None
+        if config.vision:
+            self.camera = Camera(
+                self.mj_model, config.robot, np.asarray([ZONE_RGB[c] for c in colors]),
+                self.zone_radius, zone_height(config.has_moving_zones), config.image_size,
+            )
+            self.obs_kinds = {**ZoneEnv.obs_kinds, "image": "image"}
 
     # ---- spaces -------------------------------------------------------------------------
     @property
@@ -103,12 +113,13 @@ class ZoneEnv(Env):
 
     @property
     def observation_space(self) -> spaces.Dict:
-        return spaces.Dict(
-            {
-                "ap": spaces.Box(0.0, 1.0, (len(self.propositions), self.config.num_bins)),
-                "ego": spaces.Box(-np.inf, np.inf, (self.robot.ego_size + 4,)),
-            }
-        )
+        parts = {
+            "ap": spaces.Box(0.0, 1.0, (len(self.propositions), self.config.num_bins)),
+            "ego": spaces.Box(-np.inf, np.inf, (self.robot.ego_size + 4,)),
+        }
+        if self.camera is not None:
+            parts["image"] = spaces.Box(0, 255, (*self.config.image_size, 3), jnp.uint8)
+        return spaces.Dict(parts)
 
     @property
     def alphabet(self) -> jax.Array:
@@ -239,7 +250,11 @@ class ZoneEnv(Env):
                 wall_sensor(physics.agent_pos[:2], self.config.wall),
             ]
         )
-        return {"ap": ap.astype(jnp.float32), "ego": ego.astype(jnp.float32)}
+        obs = {"ap": ap.astype(jnp.float32), "ego": ego.astype(jnp.float32)}
+        if self.camera is not None:
+            scene = self.camera.scene(physics.qpos, self.zone_positions(state))
+            obs["image"] = self.camera.render(scene)
+        return obs
 
     # ---- layout and the original's flat observation ------------------------------------
     def layout(self, state: ZoneState) -> dict[str, jax.Array]:
@@ -279,9 +294,23 @@ class ZoneEnv(Env):
             ranges[f"{color}_zones_lidar"] = np.arange(offset + p * bins, offset + (p + 1) * bins)
         return np.concatenate([ranges[k] for k in sorted(ranges)] + [wall])
 
+    def _original_keys(self) -> list[tuple[str, tuple[int, ...]]]:
+        """The original's observation keys and shapes, in its flat vector's order."""
+        sizes = dict(self.robot.ego_keys)
+        sizes |= {f"{c}_zones_lidar": self.config.num_bins for c in self.propositions}
+        shapes = {name: (3, 3) if name == "ballquat_rear" else (size,) for name, size in sizes.items()}
+        return [(name, shapes[name]) for name in sorted(shapes)] + [("wall_sensor", (4,))]
+
     @property
-    def original_observation_space(self) -> gymnasium.spaces.Box:
-        """The original's flattened observation: keys alphabetical, `wall_sensor` last."""
+    def original_observation_space(self) -> gymnasium.spaces.Space:
+        """The original's flattened observation: keys alphabetical, `wall_sensor` last. With
+        `config.vision`, the original's dict instead: each of those keys apart (same order,
+        `ballquat_rear` 3 x 3) and `vision`, uint8[H, W, 3], in its alphabetical place."""
+        if self.camera is not None:
+            return self._original_dict_space()
+        return self._original_flat_space()
+
+    def _original_flat_space(self) -> gymnasium.spaces.Box:
         ego_size = self.robot.ego_size
         size = self._original_index.shape[0]
         low = np.full(size, -np.inf, np.float32)
@@ -290,7 +319,33 @@ class ZoneEnv(Env):
         low[bounded], high[bounded] = 0.0, 1.0
         return gymnasium.spaces.Box(low, high, (size,), np.float32)
 
-    def original_observation(self, obs: Obs) -> jax.Array:
-        """float32[80 | 92 | 108]: `obs` in the original's flat layout (works batched)."""
+    def original_observation(self, obs: Obs) -> jax.Array | dict[str, jax.Array]:
+        """float32[80 | 92 | 108]: `obs` in the original's flat layout (works batched); with
+        `config.vision` the original's dict (see `original_observation_space`)."""
         ap = obs["ap"].reshape(*obs["ap"].shape[:-2], -1)
-        return jnp.concatenate([obs["ego"], ap], axis=-1)[..., self._original_index]
+        flat = jnp.concatenate([obs["ego"], ap], axis=-1)[..., self._original_index]
+        if self.camera is None:
+            return flat
+        parts, offset = {}, 0
+        for name, shape in self._original_keys():
+            size = int(np.prod(shape))
+            parts[name] = flat[..., offset:offset + size].reshape(*flat.shape[:-1], *shape)
+            offset += size
+        return self._with_vision(parts, obs["image"])
+
+    @staticmethod
+    def _with_vision(parts: dict, vision: Any) -> dict:
+        """The original's dict order: keys alphabetical (`vision` among them), `wall_sensor` last."""
+        named = {**{k: v for k, v in parts.items() if k != "wall_sensor"}, "vision": vision}
+        return {k: named[k] for k in sorted(named)} | {"wall_sensor": parts["wall_sensor"]}
+
+    def _original_dict_space(self) -> gymnasium.spaces.Dict:
+        flat = self._original_flat_space()
+        parts, offset = {}, 0
+        for name, shape in self._original_keys():
+            size = int(np.prod(shape))
+            low, high = flat.low[offset:offset + size], flat.high[offset:offset + size]
+            parts[name] = gymnasium.spaces.Box(low.reshape(shape), high.reshape(shape), shape, np.float32)
+            offset += size
+        vision = gymnasium.spaces.Box(0, 255, (*self.config.image_size, 3), np.uint8)
+        return gymnasium.spaces.Dict(collections.OrderedDict(self._with_vision(parts, vision)))
