@@ -229,7 +229,8 @@ def test_moving_zones_run_circles_in_sim_time_with_key_drawn_direction_and_phase
     from specrl_jax.envs.zone import make_zone
     from specrl_jax.envs.zone.env import ZoneState
 
-    env, _ = make_zone(level_config("Point", 1))  # zone 0 of each colour moves
+    # zone 0 of each colour moves; the kinematic option (the default weld: test_zone_motion.py)
+    env, _ = make_zone(level_config("Point", 1, zone_motion="circle"))
     layouts = [env._random_layout(jax.random.key(s), jnp.zeros((9, 2))) for s in range(12)]
     direction = np.stack([np.asarray(l["zone_direction"]) for l in layouts])
     phase = np.stack([np.asarray(l["zone_phase"]) for l in layouts])

@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass, field
 
 from specrl_jax.envs.zone.models import ROBOTS, Solver
+from specrl_jax.envs.zone.motion import MOTIONS
 from specrl_jax.envs.zone.physics import BACKENDS
 
 #: The 16 colour names the original accepts for custom worlds.
@@ -73,8 +74,11 @@ class ZoneConfig:
         physics: "jax" (MJX's JAX implementation, any device) or "warp" (MuJoCo Warp through
             MJX; needs warp-lang and a CUDA GPU, or a CPU where warp-lang can compile).
         wall: |x| or |y| at which the episode terminates, metres.
-        travel: radius of a moving zone's circle, metres.
-        angular_speed: of a moving zone, rad per simulated second.
+        travel: radius of a moving zone's commanded circle, metres.
+        angular_speed: of a moving zone's command, rad per simulated second.
+        zone_motion: "weld" (the original's: the zone is dragged after its circular command
+            by a soft weld, starting from its layout centre; `motion.py`) or "circle" (the
+            zone is on the commanded circle from t = 0).
         max_tries: tries per object before a layout restart (original: 100).
         max_restarts: whole-layout attempts before giving up (original: 10000).
         vision: add the robot camera's frame `obs["image"]`, uint8[H, W, 3] (the `Vision` IDs;
@@ -99,6 +103,7 @@ class ZoneConfig:
     wall: float = 3.3
     travel: float = 0.3
     angular_speed: float = 2.0
+    zone_motion: str = "weld"
     max_tries: int = 100
     max_restarts: int = 10000
     vision: bool = False
@@ -108,6 +113,8 @@ class ZoneConfig:
     def __post_init__(self) -> None:
         if self.physics not in BACKENDS:
             raise ValueError(f"unknown physics backend {self.physics!r}; accepted: {BACKENDS}")
+        if self.zone_motion not in MOTIONS:
+            raise ValueError(f"unknown zone_motion {self.zone_motion!r}; accepted: {MOTIONS}")
         if self.robot not in ROBOTS:
             raise ValueError(f"unknown robot {self.robot!r}; accepted: {tuple(ROBOTS)}")
         colors = tuple(self.colors) if isinstance(self.colors, (list, tuple)) else None

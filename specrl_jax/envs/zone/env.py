@@ -18,6 +18,7 @@ from specrl_jax.envs.zone.camera import ZONE_RGB, Camera, zone_height
 from specrl_jax.envs.zone.config import ZoneConfig
 from specrl_jax.envs.zone.layout import check_feasible, from_bank, sample_bank, sample_positions
 from specrl_jax.envs.zone.models import ROBOTS, load_model, start_height
+from specrl_jax.envs.zone.motion import make_motion
 from specrl_jax.envs.zone.physics import SUBSTEPS, Physics, PhysicsState
 from specrl_jax.envs.zone.sensors import compute_lidar, robot_sensor_reader, wall_sensor
 
@@ -81,6 +82,9 @@ class ZoneEnv(Env):
         self.physics = Physics(self.mj_model, config.physics)
         self.start_height = start_height(config.robot, self.mj_model)
         self.frame_dt = SUBSTEPS * float(self.mj_model.opt.timestep)
+        self.motion = make_motion(
+            config.zone_motion, config.robot, config.travel, config.angular_speed, SUBSTEPS
+        )
         colors = [c for c, n in zip(config.colors, config.zones_per_color) for _ in range(n)]
         self.zone_color = np.asarray([self.propositions.index(c) for c in colors], np.int32)
         self.zone_radius = np.asarray(
@@ -223,14 +227,16 @@ class ZoneEnv(Env):
         return self._observe(state), state, jnp.zeros((), jnp.float32), outside | fallen, info
 
     def zone_positions(self, state: ZoneState) -> jax.Array:
-        """float32[Z, 2]: current zone centres, metres. A moving zone runs a circle of radius
-        `travel` about its layout centre, starting (sim time t = 0) at angle `zone_phase`
-        from +y towards +x for direction +1: `centre + travel * (sin(a), cos(a))`,
-        `a = angular_speed * t * direction + phase`."""
-        sim_time = state.time.astype(jnp.float32) * self.frame_dt
-        angle = self.config.angular_speed * sim_time * state.zone_direction + state.zone_phase
-        circle = jnp.stack([jnp.sin(angle), jnp.cos(angle)], axis=-1)
-        return state.zone_xy + self.config.travel * jnp.abs(state.zone_direction)[:, None] * circle
+        """float32[Z, 2]: current zone centres, metres. A moving zone follows a command on the
+        circle of radius `travel` about its layout centre, at angle `angular_speed * t *
+        direction + phase` (sim time t, from +y towards +x for direction +1); with
+        `zone_motion="weld"` (default) it starts at the layout centre and trails the command as
+        the original's welded zone body does, with "circle" it is on the command itself
+        (`motion.py`)."""
+        if not self.config.has_moving_zones:
+            return state.zone_xy
+        offsets = self.motion.offsets(state.time, state.zone_direction, state.zone_phase)
+        return state.zone_xy + offsets
 
     def _labels(self, state: ZoneState) -> jax.Array:
         return labels_lib.compute_labels(
