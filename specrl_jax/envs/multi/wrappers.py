@@ -7,7 +7,7 @@ from typing import Any
 import jax
 
 from specrl_jax.envs.base import StepOut
-from specrl_jax.envs.wrappers import Wrapper, select_tree
+from specrl_jax.envs.wrappers import Wrapper, reset_done
 
 
 class MultiAutoReset(Wrapper):
@@ -24,8 +24,8 @@ class MultiAutoReset(Wrapper):
             key_step, state, action, params
         )
         done = self.env.episode_done(terminated, truncated)
-        obs_reset, state_reset = self.env.reset(key_reset, params)
-        info = dict(info, final_observation=obs, final_info=dict(info), episode_done=done)
-        obs = select_tree(done, obs_reset, obs)
-        state_next = select_tree(done, state_reset, state_next)
+        info = {**info, "final_info": dict(info), "episode_done": done}
+        obs, state_next, info = reset_done(
+            done, lambda: self.env.reset(key_reset, params), obs, state_next, info
+        )
         return obs, state_next, reward, terminated, truncated, info
