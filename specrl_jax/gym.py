@@ -19,6 +19,7 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 import specrl_jax
+from specrl_jax.envs import multi as multi_zone
 from specrl_jax.envs import spaces
 from specrl_jax.envs.wrappers import AutoReset, BatchedEnv
 
@@ -187,18 +188,96 @@ class GymVectorEnv(gymnasium.vector.VectorEnv):
         return _numpy(obs), reward.astype(np.float64), terminated, truncated, info
 
 
+class GymMultiEnv(gymnasium.Env):
+    """A multi-agent world (`env.agents`) as a `gymnasium.Env`, in the original's dict layout.
+
+    Observation `{"agent_i": {"accelerometer_i": ..., "gremlins_lidar_i": ..., "wall_sensor_i":
+    ...}}` (`env.original_observation_space`), action `{"agent_i": float32[A]}`. Reward 0.0 (the
+    agents' sum); `terminated` once every agent has terminated, `truncated` at the horizon;
+    `info["propositions"]` the set of joint propositions that hold, `info["terminated"]` and
+    `info["truncated"]` per agent.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": []}
+
+    def __init__(self, env_id: str, render_mode: str | None = None, **overrides: Any):
+        if render_mode is not None:
+            raise ValueError(f"render_mode {render_mode!r} is not supported; accepted: None")
+        self.env, self.params = specrl_jax.make(env_id, **overrides)
+        if not hasattr(self.env, "agents"):
+            raise TypeError(f"{env_id!r} is not a multi-agent world (it has no `agents`)")
+        self.agents = tuple(self.env.agents)
+        self.propositions = tuple(self.env.propositions)
+        self.observation_space = self.env.original_observation_space
+        stacked = self.env.action_space
+        single = spaces.Box(stacked.low, stacked.high, stacked.shape[1:], stacked.dtype)
+        self._single_action = single
+        self.action_space = gymnasium.spaces.Dict(
+            {agent: to_gymnasium_space(single) for agent in self.agents}, sort_keys=False
+        )
+        self._key: jax.Array | None = None
+        self._state: Any = None
+        self._reset, self._step, self._label = (
+            jax.jit(self.env.reset), jax.jit(self.env.step), jax.jit(self.env.label)
+        )
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, Any], dict[str, Any]]:
+        super().reset(seed=seed)
+        if seed is not None or self._key is None:
+            self._key = _seed_key(seed, self.np_random)
+        self._key, key = jax.random.split(self._key)
+        obs, self._state = self._reset(key, self.params)
+        label = np.asarray(self._label(self._state))
+        return self.env.original_observation(jax.device_get(obs)), {"propositions": self._names(label)}
+
+    def step(self, action: Any) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
+        if self._state is None:
+            raise RuntimeError("call reset() before step()")
+        if not isinstance(action, dict) or set(action) != set(self.agents):
+            got = sorted(action) if isinstance(action, dict) else type(action).__name__
+            raise ValueError(f"action must be a dict with keys {list(self.agents)}; got {got}")
+        for agent in self.agents:
+            self._single_action.check(np.asarray(action[agent]), what=f"action[{agent!r}]")
+        stacked = np.stack([np.asarray(action[agent]) for agent in self.agents])
+        self._key, key = jax.random.split(self._key)
+        out = self._step(key, self._state, jnp.asarray(stacked, self._single_action.dtype), self.params)
+        obs, self._state, reward, terminated, truncated, info = out
+        obs, reward, terminated, truncated, label = jax.device_get(
+            (obs, reward, terminated, truncated, info["propositions"])
+        )
+        info = {
+            "propositions": self._names(label),
+            "terminated": dict(zip(self.agents, terminated.tolist())),
+            "truncated": dict(zip(self.agents, truncated.tolist())),
+        }
+        all_terminated = bool(terminated.all())
+        episode_over = bool((terminated | truncated).all())
+        obs = self.env.original_observation(obs)
+        return obs, float(reward.sum()), all_terminated, episode_over and not all_terminated, info
+
+    def _names(self, label: np.ndarray) -> set[str]:
+        return {name for name, on in zip(self.propositions, label) if on}
+
+
 def register_all() -> list[str]:
     """Register every specrl_jax env ID not yet known to Gymnasium; returns the new IDs."""
     added = []
+    multi_agent_ids = set(multi_zone.env_ids())
     for env_id in specrl_jax.list_envs():
-        if env_id not in gymnasium.registry:
+        if env_id in gymnasium.registry:
+            continue
+        if env_id in multi_agent_ids:
+            gymnasium.register(id=env_id, entry_point=GymMultiEnv, kwargs={"env_id": env_id})
+        else:
             gymnasium.register(
                 id=env_id,
                 entry_point=GymEnv,
                 vector_entry_point=GymVectorEnv,
                 kwargs={"env_id": env_id},
             )
-            added.append(env_id)
+        added.append(env_id)
     return added
 
 
