@@ -12,6 +12,16 @@ terminations are `terminated`. `info["propositions"]` is `bool[P]` in the order 
 `env.alphabet` equal to that label without a lookup also reports it as `info["symbol"]` (int32);
 the task layer passes it to the automaton step (`automata.step_in_batch`), which then skips its
 label lookup.
+
+Invalid actions have one defined behaviour on every path. Called eagerly (concrete arrays, also
+the batch of an eager `vmap`), `step` raises `ValueError`. Traced (under `jit`/`vmap`), an action
+outside the action space (a discrete action out of range, a continuous one holding NaN or inf)
+is replaced by `action_space.sanitize` (action 0, or zeros), the episode ends (`terminated`),
+and `info["invalid_action"]` (bool) is set; it is False on every valid step, so wrappers pass
+it on. `checked(env)` (`envs/checked.py`) raises instead, through `jax.experimental.checkify`.
+
+Eager `reset`/`step` calls (outside any trace) run a jitted function shared by every env of the
+same type and config, so a second env of one config compiles nothing.
 """
 
 from __future__ import annotations
@@ -20,6 +30,8 @@ import abc
 from typing import Any
 
 import jax
+import jax.numpy as jnp
+from jax.experimental import checkify
 
 Obs = dict[str, jax.Array]
 Info = dict[str, Any]
@@ -82,18 +94,70 @@ class Env(abc.ABC):
 
     def reset(self, key: jax.Array, params: Any | None = None) -> tuple[Obs, Any]:
         """Start a new episode with a freshly sampled layout."""
-        return self.reset_env(key, self.default_params if params is None else params)
+        params = self.default_params if params is None else params
+        if not _is_traced((key, params)):
+            return _compiled(self).reset(key, params)
+        return self.reset_env(key, params)
 
     def step(
         self, key: jax.Array, state: Any, action: jax.Array, params: Any | None = None
     ) -> StepOut:
-        """Validate `action` (shape and dtype always, values when concrete), then step."""
+        """Validate `action` (shape and dtype always, values when concrete), then step.
+
+        `info["invalid_action"]` (bool) marks a traced step whose action was outside the action
+        space; that step used `action_space.sanitize(action)` and ends the episode (`terminated`).
+        """
         params = self.default_params if params is None else params
-        self.action_space.check(action)
-        obs, state, reward, terminated, info = self.step_env(key, state, action, params)
+        space = self.action_space
+        space.check(action)
+        if not _is_traced((key, state, action, params)):
+            # one dtype for Python scalars and arrays alike, so both hit one compiled step
+            action = jnp.asarray(action, space.dtype)
+            return _compiled(self).step(key, state, action, params)
+        valid = space.is_valid(action)
+        checkify.debug_check(valid, f"invalid action {{a}}; accepted: elements of {space}", a=action)
+        obs, state, reward, terminated, info = self.step_env(
+            key, state, space.sanitize(action, valid), params
+        )
+        terminated = terminated | ~valid
         truncated = (state.time >= params.max_steps) & ~terminated
+        info = {**info, "invalid_action": ~valid}
         return obs, state, reward, terminated, truncated, info
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({getattr(self, 'config', '')})"
+
+
+def _is_traced(tree: Any) -> bool:
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(tree))
+
+
+class _Compiled:
+    """Jitted `reset` and `step` of one env, run when they are called outside a trace."""
+
+    def __init__(self, env: Env):
+        self.reset = jax.jit(env.reset)
+        self.step = jax.jit(env.step)
+
+
+#: (env type, config) -> its compiled functions, shared by every env of that config
+_COMPILED: dict[Any, _Compiled] = {}
+
+
+def _compiled(env: Env) -> _Compiled:
+    """The compiled functions of `env`'s type and config (per instance without a hashable config).
+
+    Sharing by config is sound because an env is its frozen config plus pure functions.
+    """
+    try:
+        key = (type(env), env.config)
+        hash(key)
+    except (AttributeError, TypeError):
+        compiled = env.__dict__.get("_compiled_fns")
+        if compiled is None:
+            compiled = env.__dict__["_compiled_fns"] = _Compiled(env)
+        return compiled
+    if key not in _COMPILED:
+        _COMPILED[key] = _Compiled(env)
+    return _COMPILED[key]
 

@@ -27,6 +27,10 @@ class LetterConfig:
         view_size: V, odd, the agent sees the V x V cells centred on itself (None: V = N).
         letters: proposition names, one per letter type.
         counts: cells per letter type (an int applies to every letter).
+
+    Raises `ValueError` for letter densities at which valid maps are too rare for the exact
+    sampler: fewer than `letter_maps.MIN_VALID_RATE` (1 in 10,000) of the uniform placements
+    of the letter cells, by a Monte Carlo estimate made once per (grid size, cell count).
     """
 
     grid_size: int = 7
@@ -36,7 +40,7 @@ class LetterConfig:
 
     def __post_init__(self) -> None:
         n = self.grid_size
-        if not isinstance(n, int) or not 3 <= n <= letter_maps.MAX_GRID_SIZE:
+        if not isinstance(n, int) or isinstance(n, bool) or not 3 <= n <= letter_maps.MAX_GRID_SIZE:
             raise ValueError(
                 f"grid_size must be an int in 3..{letter_maps.MAX_GRID_SIZE}, got {n!r}"
             )
@@ -46,7 +50,7 @@ class LetterConfig:
                 f"got {n}; give an odd view_size < {n} for a partial view"
             )
         view = n if self.view_size is None else self.view_size
-        if not isinstance(view, int) or view < 1 or view % 2 == 0 or view > n:
+        if not isinstance(view, int) or isinstance(view, bool) or view < 1 or view % 2 == 0 or view > n:
             raise ValueError(
                 f"view_size must be an odd int in 1..grid_size={n} (the agent sits at the centre), "
                 f"got {self.view_size!r}"
@@ -60,7 +64,9 @@ class LetterConfig:
         counts = (
             (self.counts,) * len(letters) if isinstance(self.counts, int) else tuple(self.counts)
         )
-        if len(counts) != len(letters) or not all(isinstance(c, int) and c >= 1 for c in counts):
+        if len(counts) != len(letters) or not all(
+            isinstance(c, int) and not isinstance(c, bool) and c >= 1 for c in counts
+        ):
             raise ValueError(
                 f"counts must be a positive int or one positive int per letter ({len(letters)}), "
                 f"got {self.counts!r}"
@@ -70,6 +76,19 @@ class LetterConfig:
             raise ValueError(
                 f"{sum(counts)} letter cells do not fit a {n}x{n} grid: at most {n * n // 2} "
                 "(valid maps keep the empty cells connected; denser maps are almost never valid)"
+            )
+        self._check_density(n, sum(counts))
+
+    @staticmethod
+    def _check_density(n: int, num_cells: int) -> None:
+        valid, drawn, _ = letter_maps.valid_rate(n, num_cells)
+        if valid / drawn < letter_maps.MIN_VALID_RATE:
+            raise ValueError(
+                f"{num_cells} letter cells on a {n}x{n} grid: valid maps (empty cells connected, "
+                f"every letter next to an empty cell) are too rare to sample: {valid} of {drawn} "
+                f"uniform placements were valid; the exact sampler needs at least 1 in "
+                f"{round(1 / letter_maps.MIN_VALID_RATE):,}. Use fewer letter cells (counts) or "
+                "a larger grid_size"
             )
 
     @property
@@ -84,7 +103,8 @@ class LetterConfig:
     @property
     def map_spec(self) -> letter_maps.MapSpec:
         slots = tuple(i for i, c in enumerate(self.counts) for _ in range(c))
-        return letter_maps.MapSpec(self.grid_size, slots)
+        _, _, fallback = letter_maps.valid_rate(self.grid_size, len(slots))
+        return letter_maps.MapSpec(self.grid_size, slots, fallback)
 
 
 @struct.dataclass
@@ -116,7 +136,10 @@ class LetterWorld(Env):
     Action: Discrete(4), 0 up (row - 1), 1 down, 2 left, 3 right; letters are not obstacles.
     Labels: `info["propositions"]` bool[L], the letter under the agent after the move, and
         `info["symbol"]` int32[], its row of `alphabet`.
-    Reward 0; never terminates; `truncated` at `params.max_steps`.
+    Reward 0; `truncated` at `params.max_steps`; `terminated` only after an invalid action.
+    Invalid actions: an eager call with an action outside 0..3 raises `ValueError`; under `jit`
+        or `vmap` the step moves as action 0, ends the episode (`terminated`) and sets
+        `info["invalid_action"]` (False on valid steps); `envs.checked(env)` raises instead.
     State: `LetterState` (letters int8[N, N], agent int32[2], time int32).
     """
 

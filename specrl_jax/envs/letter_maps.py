@@ -14,6 +14,12 @@ empty neighbour (a necessary condition, cheap) are compacted into `J` slots and 
 first valid slot is accepted, otherwise another round runs. The accepted set is exactly uniform
 over valid sets (the examined boards are i.i.d. given that they pass the cheap filter).
 
+Rejection needs valid sets to be common enough: `valid_rate` estimates, by a bounded Monte Carlo
+on the host, the fraction of uniform k-subsets that are valid, and `LetterConfig` rejects a
+configuration below `MIN_VALID_RATE`. The loop is bounded by `MapSpec.round_limit` rounds,
+after which (probability below e^-40 at the minimum rate) it returns `MapSpec.fallback`, a fixed
+valid set found by the estimate, and `checkify.debug_check` fails (raised in checked mode).
+
 A map bank (`sample_bank`) holds exactly sampled sets as ordinal grids; `letters_from_bank`
 draws one with a random symmetry of the torus that fixes (0, 0) and a fresh uniform labelling:
 the opt-in fast reset for auto-resetting batches (docs/fidelity.md).
@@ -21,13 +27,19 @@ the opt-in fast reset for auto-resetting batches (docs/fidelity.md).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jax.experimental import checkify
 
 MAX_GRID_SIZE = 32  # one uint32 word per board row
+#: least fraction of uniform placements that must be valid; at this rate an exact reset takes
+#: tens of milliseconds on a CPU (15x15, 90 cells: rate 3e-4, 22 ms), far below it, seconds to hours
+MIN_VALID_RATE = 1e-4
 
 
 @dataclass(frozen=True)
@@ -37,10 +49,15 @@ class MapSpec:
     Attributes:
         grid_size: N, the torus is N x N.
         slot_letters: letter index of each of the k letter slots, sorted (the letter multiset).
+        fallback: bitboard rows of a valid set, returned if the sampler runs out of rounds
+            (None: the last proposal, invalid).
+        max_rounds: bound on the rejection rounds (None: `round_limit`'s default).
     """
 
     grid_size: int
     slot_letters: tuple[int, ...]
+    fallback: tuple[int, ...] | None = None
+    max_rounds: int | None = None
 
     @property
     def num_cells(self) -> int:
@@ -72,6 +89,14 @@ class MapSpec:
         """J: flood-filled slots per round (dense maps are rarely valid, sparse ones almost always)."""
         density = self.num_cells / (self.grid_size**2 - 1)
         return 64 if density > 0.3 else 16 if density > 0.15 else 4
+
+    @property
+    def round_limit(self) -> int:
+        """Rounds before giving up: each round finds a valid set with probability at least
+        1 - exp(-J rate), so at `MIN_VALID_RATE` giving up has probability below e^-40."""
+        if self.max_rounds is not None:
+            return self.max_rounds
+        return math.ceil(40 / (self.slots_per_round * MIN_VALID_RATE))
 
     @property
     def proposals_per_round(self) -> int:
@@ -163,11 +188,14 @@ def _passes_cheap_filter(rows: jax.Array, spec: MapSpec) -> jax.Array:
 
 
 def sample_board(key: jax.Array, spec: MapSpec) -> jax.Array:
-    """A uniform valid set of k cells, as a bitboard uint32[N] (jittable, vmappable)."""
+    """A uniform valid set of k cells, as a bitboard uint32[N] (jittable, vmappable).
+
+    After `spec.round_limit` fruitless rounds: `spec.fallback` (and a failed `debug_check`).
+    """
     num_raw, num_slots = spec.proposals_per_round, spec.slots_per_round
 
-    def round_(carry: tuple[jax.Array, jax.Array, jax.Array]) -> tuple:
-        key, _, board = carry
+    def round_(carry: tuple[jax.Array, jax.Array, jax.Array, jax.Array]) -> tuple:
+        key, rounds, _, board = carry
         key, key_round = jax.random.split(key)
         boards = _propose(key_round, spec, num_raw)
         passing = _passes_cheap_filter(boards, spec)
@@ -176,11 +204,70 @@ def sample_board(key: jax.Array, spec: MapSpec) -> jax.Array:
         valid = in_use & is_valid_board(boards[index], spec.grid_size)
         first = jnp.argmax(valid)
         found = valid[first]
-        return key, found, jnp.where(found, boards[index[first]], board)
+        return key, rounds + 1, found, jnp.where(found, boards[index[first]], boards[index[0]])
 
-    init = (key, jnp.asarray(False), jnp.zeros((spec.grid_size,), jnp.uint32))
-    _, _, board = jax.lax.while_loop(lambda carry: ~carry[1], round_, init)
+    def searching(carry: tuple[jax.Array, jax.Array, jax.Array, jax.Array]) -> jax.Array:
+        return ~carry[2] & (carry[1] < spec.round_limit)
+
+    init = (key, jnp.asarray(0), jnp.asarray(False), jnp.zeros((spec.grid_size,), jnp.uint32))
+    _, _, found, board = jax.lax.while_loop(searching, round_, init)
+    checkify.debug_check(
+        found, f"no valid {spec.grid_size}x{spec.grid_size} map with {spec.num_cells} letter "
+        f"cells in {spec.round_limit} sampling rounds; valid maps are too rare for this config"
+    )
+    if spec.fallback is not None:
+        board = jnp.where(found, board, jnp.asarray(spec.fallback, jnp.uint32))
     return board
+
+
+# ---------------------------------------------------------------- host-side rate estimate
+
+
+def _valid_boards_np(rows: np.ndarray, n: int) -> np.ndarray:
+    """numpy twin of `is_valid_board` for uint32[M, N] bitboards -> bool[M]."""
+    mask = np.uint32((1 << n) - 1)
+
+    def around(r: np.ndarray) -> np.ndarray:
+        left = ((r << np.uint32(1)) | (r >> np.uint32(n - 1))) & mask
+        right = ((r >> np.uint32(1)) | (r << np.uint32(n - 1))) & mask
+        return left | right | np.roll(r, 1, axis=-1) | np.roll(r, -1, axis=-1)
+
+    empty = ~rows & mask
+    reach = np.zeros_like(rows)
+    reach[:, 0] = 1
+    while True:
+        grown = (reach | around(reach)) & empty
+        if np.array_equal(grown, reach):
+            return np.all((reach | around(reach)) == mask, axis=-1)
+        reach = grown
+
+
+@functools.lru_cache(maxsize=None)
+def valid_rate(
+    grid_size: int, num_cells: int, max_samples: int = 32768, enough: int = 16
+) -> tuple[int, int, tuple[int, ...] | None]:
+    """Monte Carlo count of valid sets among uniform k-subsets of the non-start cells.
+
+    Draws batches of 2048 until `enough` valid sets are seen or `max_samples` are drawn.
+
+    Returns:
+        `(valid, drawn, board)`: the counts, and the bitboard rows of the first valid set seen
+        (None if none was).
+    """
+    n, free = grid_size, grid_size * grid_size - 1
+    rng = np.random.default_rng(n * 4096 + num_cells)
+    weights = np.left_shift(np.uint64(1), np.arange(n, dtype=np.uint64))
+    valid, drawn, first = 0, 0, None
+    while valid < enough and drawn < max_samples:
+        cells = np.argpartition(rng.random((2048, free)), num_cells, axis=1)[:, :num_cells] + 1
+        occupied = np.zeros((2048, n * n), bool)
+        np.put_along_axis(occupied, cells, True, axis=1)
+        rows = (occupied.reshape(2048, n, n) * weights).sum(axis=-1).astype(np.uint32)
+        ok = _valid_boards_np(rows, n)
+        if first is None and ok.any():
+            first = tuple(int(r) for r in rows[np.argmax(ok)])
+        valid, drawn = valid + int(ok.sum()), drawn + 2048
+    return valid, drawn, first
 
 
 def ordinal_grid(board: jax.Array, n: int) -> jax.Array:

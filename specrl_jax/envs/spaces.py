@@ -1,7 +1,9 @@
 """Observation and action spaces, with the checks done at the Python boundary.
 
 Shape and dtype checks are static, so they also run while tracing under `jit`/`vmap`;
-value checks (range, NaN) run only on concrete arrays.
+value checks (range, NaN) run on concrete arrays, including the batch of an eager `vmap`
+(`BatchedEnv.step` called outside `jit`). On the traced path `is_valid` and `sanitize` give
+invalid actions a defined behaviour instead (see `Env.step`).
 """
 
 from __future__ import annotations
@@ -15,8 +17,25 @@ import jax.numpy as jnp
 import numpy as np
 
 
-def _is_concrete(x: Any) -> bool:
-    return not isinstance(x, jax.core.Tracer)
+def _concrete_value(x: Any) -> np.ndarray | None:
+    """`x` as numpy when its values are known now, else None.
+
+    Under an eager `jax.vmap` an argument is a batching tracer wrapping the concrete batch; its
+    values are checked like an unbatched action's (every tracer of a `jit` is skipped).
+    """
+    while isinstance(x, jax.core.Tracer):
+        # batching tracers keep the whole batch in `val` (a concrete array when not under jit)
+        if not hasattr(x, "batch_dim") or not hasattr(x, "val"):
+            return None
+        x = x.val
+    return np.asarray(x)
+
+
+def _show(value: np.ndarray, bad: np.ndarray) -> str:
+    """The offending values, in full when few, else a count and a sample."""
+    if value.size <= 8:
+        return str(value.tolist())
+    return f"with {int(bad.sum())} of {value.size} values invalid, e.g. {value[bad][:5].tolist()},"
 
 
 @dataclass(frozen=True)
@@ -47,12 +66,22 @@ class Discrete:
             raise TypeError(
                 f"{what} has dtype {dtype}; expected an integer dtype for Discrete({self.n})"
             )
-        if _is_concrete(x):
-            value = np.asarray(x)
-            if np.any((value < 0) | (value >= self.n)):
+        value = _concrete_value(x)
+        if value is not None:
+            bad = (value < 0) | (value >= self.n)
+            if np.any(bad):
                 raise ValueError(
-                    f"{what} {value.tolist()} is out of range; accepted values are 0..{self.n - 1}"
+                    f"{what} {_show(value, bad)} is out of range; accepted values are "
+                    f"0..{self.n - 1}"
                 )
+
+    def is_valid(self, x: jax.Array) -> jax.Array:
+        """bool[]: every entry of `x` in 0..n-1 (traceable)."""
+        return jnp.all((x >= 0) & (x < self.n))
+
+    def sanitize(self, x: jax.Array, valid: jax.Array) -> jax.Array:
+        """`x` where `valid`, else action 0 (traceable)."""
+        return jnp.where(valid, x, jnp.zeros_like(x))
 
 
 @dataclass(frozen=True)
@@ -84,8 +113,22 @@ class Box:
             raise ValueError(f"{what} has shape {shape}; expected shape {self.shape}")
         if not jnp.issubdtype(dtype, jnp.floating):
             raise TypeError(f"{what} has dtype {dtype}; expected a floating dtype")
-        if _is_concrete(x) and not np.all(np.isfinite(np.asarray(x))):
-            raise ValueError(f"{what} contains NaN or inf: {np.asarray(x).tolist()}")
+        value = _concrete_value(x)
+        if value is not None and not np.all(np.isfinite(value)):
+            raise ValueError(
+                f"{what} {_show(value, ~np.isfinite(value))} contains NaN or inf; accepted: "
+                f"finite values (clipped to [{self.low}, {self.high}])"
+            )
+
+    def is_valid(self, x: jax.Array) -> jax.Array:
+        """bool[]: every entry of `x` finite (traceable; integer arrays are always valid)."""
+        if not jnp.issubdtype(jnp.result_type(x), jnp.inexact):
+            return jnp.asarray(True)
+        return jnp.all(jnp.isfinite(x))
+
+    def sanitize(self, x: jax.Array, valid: jax.Array) -> jax.Array:
+        """`x` where `valid`, else zeros (traceable)."""
+        return jnp.where(valid, x, jnp.zeros_like(x))
 
 
 @dataclass(frozen=True)

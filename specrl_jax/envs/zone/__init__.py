@@ -21,12 +21,23 @@ SUFFIXES = {"": (False, False), ".partial": (True, False), ".overlap": (False, T
             ".partial_overlap": (True, True)}
 
 
-def make_zone(config: ZoneConfig, **params: Any) -> tuple[ZoneEnv, ZoneParams]:
-    """Build `(env, params)` from a config; `params` may override `max_steps`."""
-    env = ZoneEnv(config)
-    unknown = set(params) - {"max_steps"}
+def _check_params(params: dict[str, Any], config_fields: tuple[str, ...] = ()) -> None:
+    """Reject unknown or bad ZoneParams overrides before any world is built."""
+    unknown = sorted(set(params) - {"max_steps"})
     if unknown:
-        raise ValueError(f"unknown ZoneParams fields {sorted(unknown)}; accepted: ['max_steps']")
+        accepted = f"ZoneConfig fields {sorted(config_fields)} and " if config_fields else ""
+        raise ValueError(
+            f"unknown Zone option(s) {unknown}; accepted: {accepted}ZoneParams fields ['max_steps']"
+        )
+    max_steps = params.get("max_steps", 1)
+    if not isinstance(max_steps, int) or isinstance(max_steps, bool) or max_steps < 1:
+        raise ValueError(f"max_steps must be a positive int, got {max_steps!r}")
+
+
+def make_zone(config: ZoneConfig, **params: Any) -> tuple[ZoneEnv, ZoneParams]:
+    """Build `(env, params)` from a config; `params` may override `max_steps` (a positive int)."""
+    _check_params(params)
+    env = ZoneEnv(config)
     return env, dataclasses.replace(env.default_params, **params) if params else env.default_params
 
 
@@ -42,6 +53,7 @@ def _factory(robot: str, level: int, partial: bool, overlap: bool, vision: bool 
             )
         config_kw = {k: v for k, v in overrides.items() if k in config_fields}
         params_kw = {k: v for k, v in overrides.items() if k not in config_fields}
+        _check_params(params_kw, tuple(config_fields - {"robot", "partial", "vision"}))
         config = level_config(robot, level, partial, overlap, vision=vision, **config_kw)
         return make_zone(config, **params_kw)
 

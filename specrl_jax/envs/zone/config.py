@@ -28,10 +28,20 @@ DEFAULT_SOLVERS = {
 }
 
 
+def _is_number(value, kind: type) -> bool:
+    """An int (for `kind` int), or a finite int or float (for `kind` float); never a bool."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    return isinstance(value, int) if kind is int else math.isfinite(value)
+
+
 def _per_color(value, colors: tuple[str, ...], name: str, kind: type) -> tuple:
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
+    if _is_number(value, kind):
         return tuple(kind(value) for _ in colors)
-    if isinstance(value, (tuple, list)) and len(value) == len(colors):
+    if (
+        isinstance(value, (tuple, list)) and len(value) == len(colors)
+        and all(_is_number(v, kind) for v in value)
+    ):
         return tuple(kind(v) for v in value)
     raise ValueError(
         f"{name} must be one {kind.__name__} or a sequence with one per colour "
@@ -139,6 +149,14 @@ class ZoneConfig:
         set_("image_size", _image_size(self.image_size))
 
     def _check_numbers(self) -> None:
+        for name, kind in (("extent", float), ("wall", float), ("travel", float),
+                           ("angular_speed", float), ("agent_keepout", float),
+                           ("max_tries", int), ("max_restarts", int)):
+            if not _is_number(getattr(self, name), kind):
+                what = "an int" if kind is int else "a finite number"
+                raise ValueError(f"{name} must be {what}, got {getattr(self, name)!r}")
+        if self.travel < 0:
+            raise ValueError(f"travel must be >= 0 metres, got {self.travel}")
         for c, n, m, r, k in zip(
             self.colors, self.zones_per_color, self.moving_per_color, self.zone_radius,
             self.zone_keepout,

@@ -67,6 +67,10 @@ class ZoneEnv(Env):
     Termination: |x| or |y| >= 3.3 (the walls), the Ant's torso z <= 0.08. Reward: always 0.
     State: `ZoneState`. Physics: `config.physics` ("jax" MJX, or "warp" MuJoCo Warp through MJX).
     Resets: an exact layout each time, or opt-in draws from `with_map_bank`.
+    Invalid actions: an eager call with NaN or inf in the action raises `ValueError`; under
+      `jit` or `vmap` the step applies zeros instead, ends the episode (`terminated`) and sets
+      `info["invalid_action"]` (False on valid steps), so the state stays finite;
+      `envs.checked(env)` raises instead.
     """
 
     obs_kinds = {"ap": "lidar", "ego": "vector"}

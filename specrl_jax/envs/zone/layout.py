@@ -18,6 +18,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.experimental import checkify
 
 from specrl_jax.envs.zone.config import ZoneConfig
 
@@ -89,6 +90,10 @@ def sample_positions(
 
     init = (jnp.array(0), jnp.zeros((keepout.shape[0], 2)), jnp.array(False), key)
     _, xy, ok, _ = jax.lax.while_loop(cond, body, init)
+    checkify.debug_check(
+        ok, f"no layout of the agent and {config.num_zones} zones in max_restarts="
+        f"{config.max_restarts} attempts; use fewer or smaller zones"
+    )
     return xy, ok
 
 
@@ -123,6 +128,17 @@ def check_feasible(config: ZoneConfig) -> int:
             f"{dict(zip(config.colors, config.zone_keepout))}, agent {config.agent_keepout}) inside "
             f"+-{config.extent} m: no success in {config.max_restarts} whole-layout attempts of "
             f"{config.max_tries} tries per object; use fewer zones or smaller keepouts"
+        )
+    # The sampler gives up after max_restarts attempts (returning overlapping zones, flagged
+    # only in checked mode), so demand that giving up be rarer than exp(-20) per reset.
+    if rate * config.max_restarts < 20:
+        raise ValueError(
+            f"layouts of the agent and {config.num_zones} zones (keepouts "
+            f"{dict(zip(config.colors, config.zone_keepout))}, agent {config.agent_keepout}) inside "
+            f"+-{config.extent} m are too rare: about {rate:.2g} of whole-layout attempts succeed, "
+            f"and a reset must succeed within max_restarts={config.max_restarts} attempts with "
+            f"near certainty (rate x max_restarts >= 20); use fewer zones, smaller keepouts or "
+            "a larger max_restarts"
         )
     target = math.ceil(2.0 / rate)
     # Capped: a round holds [num_parallel, max_tries, N] distances per env, which at level 2
