@@ -3,7 +3,8 @@
 Fidelity (`--fidelity`, CPU is enough): for `--layouts` hand-made layouts per robot (all 8 zones
 moving, random centres, directions and phases), the largest distance between
 `ZoneEnv.zone_positions` and the original's zone bodies in MuJoCo C
-(`envs/zone/weld_reference.py`) over steps 0-100 and 101-`--steps`, for `zone_motion="weld"` (default) and the kinematic "circle".
+(`envs/zone/weld_reference.py`) over steps 0-100 and 101-`--steps`, for `zone_motion="weld"`
+(default) and the kinematic "circle".
 
 Throughput (`--throughput`): env-steps/s of `--envs` with both zone motions, auto-resetting from a
 layout bank (the setting where zone motion weighs most: no rejection sampler), measured as
