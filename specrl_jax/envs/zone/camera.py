@@ -11,7 +11,7 @@ geom groups). The scene is a few primitives, so each pixel's ray is intersected 
   blended back to front by their centre's distance from the camera, as MuJoCo sorts them;
 * the four walls (boxes at +-3.5 m, inner faces at +-3.45 m, z -0.05..0.55), grey 0.5 lit by the
   head light only;
-* the robot's own geoms that can be in view (spheres, boxes, capsules), opaque, lit by MuJoCo's
+* the robot's own geoms that can be in view (spheres, boxes, capsules; cylinders too), opaque, lit by MuJoCo's
   head light (ambient 0.1, diffuse 0.4 along the view direction) and the scene's light from
   straight above (diffuse 1);
 * the sky, black (the original's star skybox could not be read; its reference frames are black).
@@ -77,6 +77,10 @@ ALL_ROBOT_GEOMS = {
         ("aux_4_geom", _RED), ("rightback_leg_geom", _RED), ("fourth_ankle_geom", _ORANGE),
     ),
 }
+
+
+_PRIMITIVES = (mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_CAPSULE,
+               mujoco.mjtGeom.mjGEOM_CYLINDER, mujoco.mjtGeom.mjGEOM_BOX)
 
 
 @dataclass(frozen=True)
@@ -184,10 +188,12 @@ class Camera:
         if (self.geom_ids < 0).any():
             raise ValueError(f"geoms {[n for n, _ in geoms]} are not all in the robot's model")
         self.geom_type = tuple(int(mj_model.geom_type[g]) for g in self.geom_ids)
-        supported = {mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_BOX,
-                     mujoco.mjtGeom.mjGEOM_CAPSULE}
-        if not set(self.geom_type) <= {int(t) for t in supported}:
-            raise ValueError(f"only spheres, boxes and capsules are drawn; got types {self.geom_type}")
+        supported = {int(t) for t in _PRIMITIVES}
+        if not set(self.geom_type) <= supported:
+            raise ValueError(
+                f"drawable geom types are {sorted(supported)} (sphere, capsule, cylinder, box); "
+                f"got {self.geom_type}"
+            )
         self.geom_size = tuple(tuple(float(v) for v in mj_model.geom_size[g]) for g in self.geom_ids)
         self.geom_rgb = tuple(tuple(rgb) for _, rgb in geoms)
         self._model = mjx.put_model(mj_model, impl="jax")
@@ -285,6 +291,26 @@ class Camera:
         normal = tuple((point[i] - s * axis[i]) / radius for i in range(3))
         return t, normal
 
+    @staticmethod
+    def _cylinder(origin, ray, centre, rot, radius, half_height):
+        oc = tuple(origin[i] - centre[i] for i in range(3))
+        o = [oc[0] * rot[0, k] + oc[1] * rot[1, k] + oc[2] * rot[2, k] for k in range(3)]
+        d = [ray[0] * rot[0, k] + ray[1] * rot[1, k] + ray[2] * rot[2, k] for k in range(3)]
+        a = d[0] * d[0] + d[1] * d[1]
+        b = o[0] * d[0] + o[1] * d[1]
+        disc = b * b - a * (o[0] * o[0] + o[1] * o[1] - radius * radius)
+        t_side = (-b - jnp.sqrt(jnp.maximum(disc, 0.0))) / jnp.maximum(a, 1e-12)
+        side = (disc >= 0) & (a > 1e-12) & (jnp.abs(o[2] + t_side * d[2]) <= half_height) & (t_side > 0)
+        dz = jnp.where(jnp.abs(d[2]) < 1e-12, 1e-12, d[2])
+        t_cap = (-jnp.sign(dz) * half_height - o[2]) / dz  # the cap facing the ray
+        x, y = o[0] + t_cap * d[0], o[1] + t_cap * d[1]
+        cap = (x * x + y * y <= radius * radius) & (t_cap > 0)
+        t = jnp.where(side, t_side, jnp.where(cap, t_cap, jnp.inf))
+        local = [jnp.where(side, o[k] + t * d[k], 0.0) / radius for k in range(2)]
+        local.append(jnp.where(side, 0.0, -jnp.sign(dz)))
+        normal = tuple(sum(rot[i, k] * local[k] for k in range(3)) for i in range(3))
+        return t, normal
+
     def _robot(self, scene: Scene, origin, ray, forward):
         """Nearest robot geom: `(t, index, rgb)`, index -1 where none is hit."""
         t_best = jnp.full(ray[0].shape, jnp.inf)
@@ -296,6 +322,8 @@ class Camera:
                 t, normal = self._sphere(origin, ray, centre, size[0])
             elif kind == mujoco.mjtGeom.mjGEOM_BOX:
                 t, normal = self._box(origin, ray, centre, rot, size)
+            elif kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
+                t, normal = self._cylinder(origin, ray, centre, rot, size[0], size[1])
             else:
                 t, normal = self._capsule(origin, ray, centre, rot, size[0], size[1])
             light = (
