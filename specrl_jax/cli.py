@@ -53,15 +53,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def enable_compilation_cache() -> None:
-    """JAX's persistent compilation cache (`$SPECRL_JAX_CACHE`, default ~/.cache/specrl_jax),
-    unless one is configured already."""
-    import jax
+    """JAX's persistent compilation cache under `$SPECRL_JAX_CACHE_DIR/jax` (default
+    ~/.cache/specrl_jax/jax, `off` to disable), unless one is configured already
+    (`specrl_jax.cache`)."""
+    from specrl_jax import cache
 
-    if jax.config.jax_compilation_cache_dir:
-        return
-    default = os.path.join(os.path.expanduser("~"), ".cache", "specrl_jax", "jax")
-    jax.config.update("jax_compilation_cache_dir", os.environ.get("SPECRL_JAX_CACHE", default))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    cache.enable_jax_cache()
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -5,11 +5,22 @@ benchmark's layout (`env.original_observation_space`: a flat vector, or for came
 original's dict with its `vision` key), reward 0, `info["propositions"]` a set of
 proposition names. `gymnasium.make_vec(env_id, num_envs=N)` gives a `GymVectorEnv` that steps the
 N worlds in one compiled call with same-step auto-reset. Both are thin host shells over the JAX
-env: they jit once, hold the only stateful key, and seed it through `reset(seed=...)`.
+env: they jit once, hold the only stateful key, and seed it through `reset(seed=...)`. Their
+compiled functions are shared by every bridge over the same world config, so a second
+`gymnasium.make` of one ID compiles nothing.
+
+Processes: JAX cannot run in a child forked after JAX started (its threads deadlock the child),
+so importing this module makes "spawn" the default multiprocessing start method where the
+platform's default is "fork" and no method was chosen yet: `gymnasium.make_vec(...,
+vectorization_mode="async")` then works (workers import specrl_jax afresh; guard the script's
+entry point with `if __name__ == "__main__":`). A bridge built in such a forked child raises
+`RuntimeError` instead of hanging.
 """
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 from typing import Any, ClassVar
 
 import gymnasium
@@ -22,6 +33,54 @@ import specrl_jax
 from specrl_jax.envs import multi as multi_zone
 from specrl_jax.envs import spaces
 from specrl_jax.envs.wrappers import AutoReset, BatchedEnv
+
+
+#: set in a child forked from a process whose JAX backends had started
+_FORKED_AFTER_JAX = False
+#: (bridge kind, env type, config[, num_envs]) -> jitted (reset, step), shared between bridges
+_COMPILED: dict[Any, tuple[Any, Any]] = {}
+
+
+def _after_fork_in_child() -> None:
+    global _FORKED_AFTER_JAX
+    from jax._src import xla_bridge
+
+    _FORKED_AFTER_JAX = _FORKED_AFTER_JAX or xla_bridge.backends_are_initialized()
+
+
+def _use_spawn_by_default() -> None:
+    """"spawn" as the default start method where it would be "fork" and none was chosen."""
+    if (
+        multiprocessing.get_start_method(allow_none=True) is None
+        and multiprocessing.get_all_start_methods()[0] == "fork"
+    ):
+        multiprocessing.set_start_method("spawn")
+
+
+def _check_not_forked() -> None:
+    if _FORKED_AFTER_JAX:
+        raise RuntimeError(
+            "this process was forked from one in which JAX had started; JAX deadlocks after a "
+            "fork. Use gymnasium.make_vec(env_id, num_envs) (one compiled call for all worlds), "
+            "or vectorization_mode='async' with vector_kwargs={'context': 'spawn'}"
+        )
+
+
+def _shared(key: tuple, build: Any) -> tuple[Any, Any]:
+    """`build()`'s jitted functions, made once per hashable `key`."""
+    try:
+        hash(key)
+    except TypeError:
+        return build()
+    if key not in _COMPILED:
+        _COMPILED[key] = build()
+    return _COMPILED[key]
+
+
+def _config_key(env: Any) -> Any:
+    """What identifies the world's compiled code: its type and frozen config (or itself)."""
+    config = getattr(env, "config", None)
+    return env if config is None else (type(env), config)
 
 
 def to_gymnasium_space(space: Any) -> gymnasium.spaces.Space:
@@ -60,6 +119,7 @@ class GymEnv(gymnasium.Env):
     def __init__(self, env_id: str, render_mode: str | None = None, **overrides: Any):
         if render_mode is not None:
             raise ValueError(f"render_mode {render_mode!r} is not supported; accepted: None")
+        _check_not_forked()
         self.env, self.params = _make(env_id, overrides)
         self.observation_space = self.env.original_observation_space
         self.action_space = to_gymnasium_space(self.env.action_space)
@@ -84,7 +144,9 @@ class GymEnv(gymnasium.Env):
                 info["propositions"],
             )
 
-        self._reset, self._step = jax.jit(reset), jax.jit(step)
+        self._reset, self._step = _shared(
+            ("single", _config_key(env)), lambda: (jax.jit(reset), jax.jit(step))
+        )
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -132,6 +194,7 @@ class GymVectorEnv(gymnasium.vector.VectorEnv):
     def __init__(self, env_id: str, num_envs: int = 1, **overrides: Any):
         if not isinstance(num_envs, int) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+        _check_not_forked()
         self.env, self.params = _make(env_id, overrides)
         self.num_envs = num_envs
         self.propositions = tuple(self.env.propositions)
@@ -157,7 +220,9 @@ class GymVectorEnv(gymnasium.vector.VectorEnv):
             final = original(info["final_observation"])
             return original(obs), state, reward, terminated, truncated, info["propositions"], final
 
-        self._reset, self._step = jax.jit(reset), jax.jit(step)
+        self._reset, self._step = _shared(
+            ("vector", _config_key(self.env), num_envs), lambda: (jax.jit(reset), jax.jit(step))
+        )
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -282,3 +347,5 @@ def register_all() -> list[str]:
 
 
 register_all()
+_use_spawn_by_default()
+os.register_at_fork(after_in_child=_after_fork_in_child)

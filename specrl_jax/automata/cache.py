@@ -1,6 +1,7 @@
 """Disk cache of compiled specs: one `.npz` per (formula, propositions, alphabet, caps, versions).
 
-Directory: `$SPECRL_JAX_CACHE_DIR/automata`, default `~/.cache/specrl_jax/automata`. Writes are
+Directory: `specrl_jax.cache.automata_dir()`, i.e. `$SPECRL_JAX_CACHE_DIR/automata` (default
+`~/.cache/specrl_jax/automata`; no disk cache when `SPECRL_JAX_CACHE_DIR=off`). Writes are
 atomic (temporary file + rename), and an unreadable entry is treated as a miss.
 """
 
@@ -17,14 +18,15 @@ import numpy as np
 import spot
 
 import specrl_jax
+from specrl_jax import cache as _root_cache
 
 #: bump when the compiled layout or the construction changes
 FORMAT_VERSION = 3
 
 
-def cache_dir() -> str:
-    root = os.environ.get("SPECRL_JAX_CACHE_DIR", os.path.join("~", ".cache", "specrl_jax"))
-    return os.path.join(os.path.expanduser(root), "automata")
+def cache_dir() -> str | None:
+    """The automata cache directory, or None when caching is off."""
+    return _root_cache.automata_dir()
 
 
 def cache_key(formula: str, propositions: Sequence[str], alphabet: np.ndarray, **options) -> str:
@@ -44,8 +46,11 @@ def cache_key(formula: str, propositions: Sequence[str], alphabet: np.ndarray, *
 
 
 def load(key: str) -> dict[str, np.ndarray] | None:
-    """The arrays stored under `key`, or None (missing or unreadable)."""
-    path = os.path.join(cache_dir(), key + ".npz")
+    """The arrays stored under `key`, or None (missing, unreadable, or caching off)."""
+    directory = cache_dir()
+    if directory is None:
+        return None
+    path = os.path.join(directory, key + ".npz")
     try:
         with np.load(path) as data:
             return {name: data[name] for name in data.files}
@@ -54,8 +59,10 @@ def load(key: str) -> dict[str, np.ndarray] | None:
 
 
 def save(key: str, arrays: dict[str, np.ndarray]) -> None:
-    """Store `arrays` under `key` (silently skipped if the directory is not writable)."""
+    """Store `arrays` under `key` (skipped if caching is off or the directory is not writable)."""
     directory = cache_dir()
+    if directory is None:
+        return
     try:
         os.makedirs(directory, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp")
