@@ -1,5 +1,5 @@
-"""Train a baseline on LetterWorld and evaluate it on the paper's suites: the pipeline behind
-`specrl-jax train`, `specrl-jax run` and `benchmarks/train_letter.py`.
+"""Train a baseline on any single-agent world and evaluate it on the paper's suites: the pipeline
+behind `specrl-jax train`, `specrl-jax run` and `benchmarks/train_baselines.py`.
 
 Seeds follow the paper's protocol: `num_seeds` independent trainings (side by side under
 `vmap`), each evaluated with its own seed on `episodes` fresh layouts per spec; tables report the
@@ -30,22 +30,43 @@ LETTER_SUITES = ("letter/finite/ind", "letter/finite/ood", "letter/infinite/rsp"
 SUCCESS_LEVELS = (0.5, 0.8, 0.9, 0.95, 0.98)
 
 
+#: env ID prefix -> world family (PPO settings, curricula, default suites)
+FAMILIES = {"Letter": "letter", "Point": "zone", "Car": "zone", "Ant": "zone", "Panda": "arm"}
+SUITES = {
+    "letter": LETTER_SUITES,
+    "zone": ("zone/finite/ind", "zone/finite/ood", "zone/infinite/rsp", "zone/infinite/rec",
+             "zone/infinite/per"),
+}
+
+
 def method_module(name: str):
     if name not in METHODS:
         raise ValueError(f"unknown method {name!r}; accepted: {', '.join(METHODS)}")
     return METHODS[name]
 
 
+def family(env_id: str) -> str:
+    """The world family of a single-agent env ID ("letter", "zone", "arm")."""
+    from specrl_jax.envs.registry import list_envs
+
+    found = [f for prefix, f in FAMILIES.items() if env_id.startswith(prefix)]
+    if not found or env_id not in list_envs() or "MA" in env_id.split("-")[0]:
+        trainable = [e for e in list_envs() if any(e.startswith(p) for p in FAMILIES) and "MA" not in e]
+        raise ValueError(f"cannot train on env {env_id!r}; single-agent IDs: {', '.join(trainable)}")
+    return found[0]
+
+
 def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int | None, key: jax.Array):
-    """(world, train params, method object, PPOConfig) for `method` on `env_id`."""
+    """(world, train params, method object, PPOConfig) for `method` on `env_id`; `map_bank`
+    (LetterWorld) draws training resets from a bank of that many exactly sampled maps."""
     module = method_module(method)
-    if not env_id.startswith("LetterLTL"):
-        raise ValueError(f"the baselines train on LetterWorld for now; got env {env_id!r}")
+    world_family = family(env_id)
     world, params = make(env_id)
-    if map_bank:
+    if map_bank and world_family == "letter":
         # wait for the bank here: dispatched asynchronously, it would finish inside training
         params = jax.block_until_ready(world.with_map_bank(key, params, num_maps=map_bank))
-    return world, params, module.make_method(world, params), module.ppo_config(**ppo_overrides)
+    method_obj = module.make_method(world, params, world_family)
+    return world, params, method_obj, module.ppo_config(world_family, **ppo_overrides)
 
 
 def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str, Any], num_seeds: int = 1,
@@ -91,15 +112,15 @@ def time_to_levels(rows: Sequence[dict[str, Any]], levels: Sequence[float] = SUC
     return found
 
 
-def make_policy(method: str, world: Any, method_obj: Any, deterministic: bool | None = None):
+def make_policy(method: str, world: Any, method_obj: Any, deterministic: bool | None = None,
+                world_family: str = "letter", **options: Any):
     """The method's test-time agent; `deterministic` None = the reference's setting (GenZ-LTL
-    mode actions, DeepLTL sampled actions on LetterWorld)."""
+    mode actions; DeepLTL sampled actions on LetterWorld, mode actions on ZoneEnv)."""
     module = method_module(method)
-    if method == "genz":
-        return module.make_policy(method_obj.network, world.alphabet,
-                                  deterministic=True if deterministic is None else deterministic)
-    return module.make_policy(method_obj.network, world.alphabet, world.action_space.n,
-                              deterministic=bool(deterministic))
+    if deterministic is None:
+        deterministic = method == "genz" or world_family != "letter"
+    return module.make_policy(method_obj.network, world.alphabet, world.obs_kinds,
+                              deterministic=deterministic, **options)
 
 
 def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episodes: int,
@@ -114,7 +135,8 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
     from specrl_jax.tasks import TaskEnv
 
     world, env_params = make(env_id)
-    method_obj = method_module(method).make_method(world, env_params)
+    world_family = family(env_id)
+    method_obj = method_module(method).make_method(world, env_params, world_family)
     formulas, groups = [], {}
     for name in suites:
         suite = specs.suite(name)
@@ -124,7 +146,7 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
         [automata.compile_spec(f, world.propositions, alphabet=world.alphabet) for f in formulas]
     )
     task = TaskEnv(world, compiled)
-    policy = make_policy(method, world, method_obj, deterministic)
+    policy = make_policy(method, world, method_obj, deterministic, world_family)
     evaluator = make_evaluator(policy, task, env_params, episodes_per_seed=episodes)
     num_seeds = jax.tree.leaves(params)[0].shape[0]
     tables = []
@@ -148,7 +170,7 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
 def load_params(method: str, env_id: str, path: str | Path, num_seeds: int) -> Any:
     """Read `params.msgpack` written by `train` (leading seed axis)."""
     world, env_params = make(env_id)
-    method_obj = method_module(method).make_method(world, env_params)
+    method_obj = method_module(method).make_method(world, env_params, family(env_id))
     # shapes only: running the env's reset and the network's init eagerly takes seconds on a CPU
     obs, _ = jax.eval_shape(method_obj.env.reset, jax.random.key(0), method_obj.init_task_params())
     one_obs = jax.tree.map(lambda x: jax.ShapeDtypeStruct((1, *x.shape), x.dtype), obs)
@@ -157,12 +179,19 @@ def load_params(method: str, env_id: str, path: str | Path, num_seeds: int) -> A
     return serialization.from_bytes(template, Path(path).read_bytes())
 
 
-def default_overrides(device_kind: str, total_steps: int | None = None) -> dict[str, Any]:
-    """Training shape: the reference's 16 x 128 on a CPU; 256 x 128 (minibatch 4096) on an
-    accelerator, with the per-sample settings unchanged (docs/fidelity.md)."""
-    shape = {"num_envs": 16, "num_steps": 128, "num_minibatches": 8}
-    if device_kind != "cpu":
+def default_overrides(device_kind: str, total_steps: int | None = None,
+                      world_family: str = "letter") -> dict[str, Any]:
+    """Training shape. LetterWorld: the reference's 16 x 128 on a CPU; 256 x 128 (minibatch 4096)
+    on an accelerator. ZoneEnv / Arm: 16 x 128 on a CPU; on an accelerator 512 x 128 = 65,536
+    samples per update in minibatches of 2,048, the reference's update size (16 x 4096). The
+    per-sample settings are unchanged (docs/fidelity.md); GenZ-LTL's epochs are capped at 10
+    on an accelerator."""
+    if device_kind == "cpu":
+        shape = {"num_envs": 16, "num_steps": 128, "num_minibatches": 8}
+    elif world_family == "letter":
         shape = {"num_envs": 256, "num_steps": 128, "num_minibatches": 8}
+    else:
+        shape = {"num_envs": 512, "num_steps": 128, "num_minibatches": 32}
     if total_steps is not None:
         shape["total_timesteps"] = int(total_steps)
     return shape

@@ -1,19 +1,23 @@
 """GenZ-LTL (Guo et al., NeurIPS'25): one reach-avoid subgoal at a time, safety as a hard constraint.
 
-The policy sees no specification encoding: the subgoal is written into the observation, the
-proposition channels reduced to one image (reach cells 1.0, avoid cells 0.5, agent 0.2). It
-trains with RCO (`losses.rco_loss`): a reward critic, a reachability-cost critic and a
-state-dependent Lagrange multiplier, on the uniform distribution of one-step subgoals (reach one
-letter, avoid 0-3 others); +1 on reach, then a fresh subgoal with the return cut there; cost +1
-and termination on an avoided letter, -1 otherwise. At test time (`make_policy`) the automaton
-state's candidate subgoals are scored by `V_r - lam V_c` and the best is followed until the
-state changes or a step budget passes without progress; with no candidate left the episode is
-given up (aborted), as the reference's `NoPathsException`.
+The policy sees no specification encoding: the subgoal is written into the observation by
+reducing its proposition axis (`reduce_observation`): on a grid the proposition channels become
+one image (reach cells 1.0, avoid cells 0.5, agent 0.2); on LiDAR (or range-bearing) features the
+reach and avoid sets become one max-pooled reading each, appended to the robot sensors. It trains
+with RCO (`losses.rco_loss`): a reward critic, a reachability-cost critic and a state-dependent
+Lagrange multiplier, on the uniform distribution of one-step subgoals (reach one proposition,
+avoid 0-3 others) drawn by the task loop's continual sequence source: +1 on reach, then a fresh
+subgoal with the return cut there; cost +1 and termination on an avoided proposition (or the
+world's own termination, e.g. the walls), -1 otherwise. At test time (`make_policy`) the
+automaton state's candidate subgoals are scored by `V_r - lam V_c` and the best is followed until
+the state changes or a step budget passes without progress; with no candidate left the episode
+is given up (aborted), as the reference's `NoPathsException`.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -21,124 +25,140 @@ import jax
 import jax.numpy as jnp
 
 from specrl_jax.automata import label_symbol, pairs
-from specrl_jax.baselines.ppo.networks import MLP, DiscreteHead, LetterCNN, PolicyOutput, critic
-from specrl_jax.baselines.ppo.rollout import StepResult
+from specrl_jax.baselines.encoders import ObsEncoder, check_kinds, obs_parts
+from specrl_jax.baselines.ppo.networks import (
+    MLP,
+    DiscreteHead,
+    GaussianHead,
+    PolicyOutput,
+    critic,
+)
 from specrl_jax.baselines.ppo.train import PPOConfig
-from specrl_jax.tasks.policy import StatefulPolicy
-from specrl_jax.specs import genz_tasks, sample_genz_subgoal
+from specrl_jax.baselines.train_env import TaskTrainEnv
+from specrl_jax.specs import CurriculumSampler, curriculum
+from specrl_jax.tasks import SequenceSource, StatefulPolicy, TaskEnv
 
 REACH, AVOID, AGENT = 1.0, 0.5, 0.2
 
 
-def reduce_observation(obs: dict[str, jax.Array], reach: jax.Array, avoid: jax.Array) -> jax.Array:
-    """LetterWorld obs + subgoal -> float32[V, V, 1] (GenZ-LTL's `pre_process_obs_letter`).
+def _pool(ap: jax.Array, mask: jax.Array) -> jax.Array:
+    """The features of the propositions in `mask` bool[P], pooled over the leading proposition
+    axis of `ap` float[P, ...]: for range-bearing features `[..., 4]` the entry of the nearest
+    one (largest proximity, the last feature), else the elementwise max; zeros for an empty mask."""
+    ap = ap.astype(jnp.float32)
+    shaped = mask.reshape(mask.shape + (1,) * (ap.ndim - 1))
+    if ap.shape[-1] == 4 and ap.ndim >= 3:
+        proximity = jnp.where(shaped[..., 0], ap[..., -1], -jnp.inf)
+        nearest = jnp.argmax(proximity, axis=0)
+        pooled = jnp.take_along_axis(ap, nearest[None, ..., None], axis=0)[0]
+    else:
+        pooled = jnp.max(jnp.where(shaped, ap, -jnp.inf), axis=0)
+    return jnp.where(jnp.any(mask), pooled, 0.0)
+
+
+def reduce_observation(obs: Mapping[str, jax.Array], obs_kinds: Mapping[str, str],
+                       reach: jax.Array, avoid: jax.Array) -> dict[str, jax.Array]:
+    """A world observation + subgoal -> the encoder parts GenZ-LTL's policy reads.
 
     Args:
-        obs: `ap` uint8[V, V, P] letter channels, `ego` uint8[V, V, 1] agent channel.
+        obs: one env's observation; `obs["ap"]` has the proposition axis (last for a grid, first
+            for LiDAR / range-bearing features).
+        obs_kinds: `env.obs_kinds`.
         reach, avoid: bool[P] proposition masks.
+
+    Returns:
+        Grid worlds: `{"grid": float32[V, V, 1]}` (the reference's `pre_process_obs_letter`).
+        Feature worlds: `{"vector": [other parts, pooled reach, pooled avoid]}` (the reference's
+        `pre_process_obs_zones`: robot sensors, max LiDAR of the reach set, of the avoid set).
     """
-    ap = obs["ap"].astype(bool)
-    reach_map = jnp.any(ap & reach, axis=-1)
-    avoid_map = jnp.any(ap & avoid, axis=-1)
-    image = jnp.where(reach_map, REACH, jnp.where(avoid_map, AVOID, 0.0))
-    image = jnp.where(obs["ego"][..., 0].astype(bool), AGENT, image)  # drawn last, as the reference
-    return image[..., None].astype(jnp.float32)
+    if obs_kinds["ap"] == "grid":
+        ap = obs["ap"].astype(bool)
+        image = jnp.where(jnp.any(ap & reach, -1), REACH,
+                          jnp.where(jnp.any(ap & avoid, -1), AVOID, 0.0))
+        if obs_kinds.get("ego") == "grid":  # the agent is drawn last, as the reference
+            image = jnp.where(obs["ego"][..., 0].astype(bool), AGENT, image)
+        parts = obs_parts(obs, obs_kinds, skip=("ap", "ego"))
+        parts["grid"] = image[..., None].astype(jnp.float32)
+        return parts
+    parts = obs_parts(obs, obs_kinds, skip=("ap",))
+    pooled = [_pool(obs["ap"], reach).reshape(-1), _pool(obs["ap"], avoid).reshape(-1)]
+    parts["vector"] = jnp.concatenate([parts.get("vector", jnp.zeros(0)), *pooled])
+    return parts
 
 
 class GenZNetwork(nn.Module):
-    """CNN on the reduced image; actor [64, 64, 64] ReLU; reward critic [64, 64] Softplus with a
-    Softplus output (V_r >= 0); cost critic [64, 64] Tanh; multiplier net [64, 64] Softplus, >= 0."""
+    """Observation encoder; actor [64, 64, 64] ReLU (discrete logits, or a Gaussian with Tanh mean
+    and state-dependent std); reward critic [64, 64] Softplus with a Softplus output (V_r >= 0);
+    cost critic [64, 64] Tanh; multiplier net [64, 64] Softplus, >= 0."""
 
-    num_actions: int = 4
+    num_actions: int = 4  # discrete actions, or the action dimension when `continuous`
+    continuous: bool = False
 
     @nn.compact
-    def __call__(self, image: jax.Array) -> PolicyOutput:
-        emb = LetterCNN()(image)
-        pi = DiscreteHead(self.num_actions)(MLP((64, 64, 64), "relu")(emb))
+    def __call__(self, parts: Mapping[str, jax.Array]) -> PolicyOutput:
+        emb = ObsEncoder()(parts)
+        hidden = MLP((64, 64, 64), "relu")(emb)
+        pi = GaussianHead(self.num_actions)(hidden) if self.continuous else DiscreteHead(self.num_actions)(hidden)
         value = critic((64, 64), "softplus", final="softplus")(emb)[..., 0]
         cost_value = critic((64, 64), "tanh")(emb)[..., 0]
         multiplier = critic((64, 64), "softplus", final="softplus")(emb)[..., 0]
         return PolicyOutput(pi, value, cost_value, multiplier)
 
 
-class GenZState(NamedTuple):
-    world: Any
-    reach: jax.Array  # bool[P]
-    avoid: jax.Array  # bool[P]
-
-
-@dataclasses.dataclass(frozen=True)
-class GenZTrainEnv:
-    """LetterWorld with GenZ-LTL's subgoal wrapper (`SequenceSafetyWrapper`), auto-resetting."""
-
-    world: Any
-    params: Any
-    max_avoid: int = 3
-    cost_step: float = -1.0
-
-    def _subgoal(self, key: jax.Array, current: jax.Array) -> tuple[jax.Array, jax.Array]:
-        tasks = genz_tasks(self.world.num_propositions, self.max_avoid)
-        sequence, _ = sample_genz_subgoal(key, tasks, current)
-        return sequence.reach[0], sequence.avoid[0]
-
-    def reset(self, key: jax.Array, task_params: Any = None) -> tuple[jax.Array, GenZState]:
-        key_world, key_goal = jax.random.split(key)
-        obs, world = self.world.reset(key_world, self.params)
-        reach, avoid = self._subgoal(key_goal, jnp.zeros(self.world.num_propositions, bool))
-        return reduce_observation(obs, reach, avoid), GenZState(world, reach, avoid)
-
-    def step(self, key: jax.Array, state: GenZState, action: jax.Array, task_params: Any = None):
-        key_step, key_goal, key_reset = jax.random.split(key, 3)
-        obs, world, _, _, truncated, info = self.world.step(key_step, state.world, action, self.params)
-        props = info["propositions"]
-        violated = jnp.any(props & state.avoid)
-        reached = jnp.any(props & state.reach) & ~violated
-        truncated = truncated & ~violated
-        final_obs = reduce_observation(obs, state.reach, state.avoid)
-        reach, avoid = self._subgoal(key_goal, props)
-        reach = jnp.where(reached, reach, state.reach)
-        avoid = jnp.where(reached, avoid, state.avoid)
-        next_obs, next_state = reduce_observation(obs, reach, avoid), GenZState(world, reach, avoid)
-        obs_reset, state_reset = self.reset(key_reset)
-        done = violated | truncated
-        next_obs, next_state = jax.tree.map(
-            lambda a, b: jnp.where(done, a, b), (obs_reset, state_reset), (next_obs, next_state)
-        )
-        f32 = lambda x: x.astype(jnp.float32)
-        stats = {
-            "episodes": f32(done),
-            "reaches": f32(reached),
-            "violations": f32(violated),
-            "timeouts": f32(truncated),
-        }
-        result = StepResult(
-            reward=f32(reached),
-            cost=jnp.where(violated, 1.0, self.cost_step),
-            terminated=violated,
-            truncated=truncated,
-            cut=reached,
-            final_obs=final_obs,
-            stats=stats,
-        )
-        return next_obs, next_state, result
+def network_for(world: Any) -> GenZNetwork:
+    """The GenZ-LTL network for a world's action space."""
+    check_kinds(world.obs_kinds)
+    space = world.action_space
+    if hasattr(space, "n"):
+        return GenZNetwork(int(space.n))
+    return GenZNetwork(int(space.shape[0]), continuous=True)
 
 
 @dataclasses.dataclass(frozen=True)
 class GenZ:
-    """The GenZ-LTL method for the shared trainer (LetterWorld)."""
+    """The GenZ-LTL method for the shared trainer: the task loop with GenZ-LTL's continual
+    subgoal source, its reduced observation and its reward / cost signals."""
 
-    env: GenZTrainEnv
+    env: TaskTrainEnv
     network: GenZNetwork
 
     def init_task_params(self) -> Any:
-        return None
+        return self.env.task.source.init_params()
 
     def update_task_params(self, task_params: Any, stats: dict[str, jax.Array]) -> Any:
         return task_params
 
 
-def make_method(world: Any, params: Any) -> GenZ:
-    return GenZ(GenZTrainEnv(world, params), GenZNetwork(world.action_space.n))
+def subgoal_masks(task: Any, alphabet: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """The current pair of a `SequenceTask` as proposition masks `(reach, avoid)`, bool[P] each."""
+    current = task.current
+    reach = jnp.any(task.reach[current][:, None] & alphabet, axis=0)
+    avoid = jnp.any(task.avoid[current][:, None] & alphabet, axis=0)
+    return reach, avoid
+
+
+def make_method(world: Any, params: Any, family: str = "letter", cost_step: float = -1.0) -> GenZ:
+    """GenZ-LTL on any single-agent world: subgoals reach 1 proposition and avoid up to 3 others
+    (Letter: 2,784 tasks; Zone: 32); `family` names the world's curriculum ("letter": genz/letter,
+    else genz/zone, the same subgoal distribution)."""
+    network = network_for(world)
+    alphabet = jnp.asarray(world.alphabet, bool)
+    name = "genz/letter" if family == "letter" else "genz/zone"
+    sampler = CurriculumSampler(curriculum(name), world.num_propositions)
+    source = SequenceSource(sampler, alphabet, continual=True)
+    kinds = dict(world.obs_kinds)
+
+    def observe(obs, state):
+        reach, avoid = subgoal_masks(state.task, alphabet)
+        return reduce_observation(obs, kinds, reach, avoid)
+
+    def signals(info):
+        failed = info["violation"] | info["env_terminated"]
+        cost = jnp.where(failed, 1.0, cost_step)
+        return info["progress"].astype(jnp.float32), cost, info["progress"]
+
+    task = TaskEnv(world, source, observe)
+    return GenZ(TaskTrainEnv(task, params, signals), network)
 
 
 def summarise(row: dict[str, float]) -> dict[str, float]:
@@ -151,13 +171,20 @@ def summarise(row: dict[str, float]) -> dict[str, float]:
     }
 
 
-def ppo_config(**overrides: Any) -> PPOConfig:
-    """GenZ-LTL's LetterWorld settings (RCO, c_v 1.0, up to 80 epochs with KL stop 0.015)."""
+def ppo_config(world: str = "letter", **overrides: Any) -> PPOConfig:
+    """GenZ-LTL's settings (RCO, c_v 1.0, up to 80 epochs with KL stop): LetterWorld 16 x 128,
+    minibatch 256, gamma 0.94, entropy 0.01; ZoneEnv 16 x 4096, minibatch 2048, gamma 0.998,
+    entropy 0.003, target KL 0.01, lr 3e-4 (the run script's; the saved config says 1e-4)."""
     base = {
-        "num_envs": 16, "num_steps": 128, "num_minibatches": 8, "update_epochs": 80, "target_kl": 0.015,
-        "loss": "rco", "vf_coef": 1.0, "ent_coef": 0.01, "gamma": 0.94, "gae_lambda": 0.95, "lr": 3e-4,
-    }
-    return PPOConfig(**{**base, **overrides})
+        "letter": {"num_envs": 16, "num_steps": 128, "num_minibatches": 8, "gamma": 0.94,
+                   "ent_coef": 0.01, "target_kl": 0.015},
+        "zone": {"num_envs": 16, "num_steps": 4096, "num_minibatches": 32, "gamma": 0.998,
+                 "ent_coef": 0.003, "target_kl": 0.01},
+        "arm": {"num_envs": 16, "num_steps": 1024, "num_minibatches": 8, "gamma": 0.99,
+                "ent_coef": 0.003, "target_kl": 0.01},
+    }[world]
+    common = {"update_epochs": 80, "loss": "rco", "vf_coef": 1.0, "gae_lambda": 0.95, "lr": 3e-4}
+    return PPOConfig(**{**common, **base, **overrides})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -199,8 +226,8 @@ def candidate_masks(spec: Any, q: jax.Array, alphabet: jax.Array) -> tuple[jax.A
     return reach.reshape(-1, num_props), avoid.reshape(-1, num_props), valid.reshape(-1)
 
 
-def make_policy(network: nn.Module, alphabet: jax.Array, deterministic: bool = True,
-                replan_steps: int = 300) -> StatefulPolicy:
+def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str, str],
+                deterministic: bool = True, replan_steps: int = 300) -> StatefulPolicy:
     """GenZ-LTL's test-time agent as a `StatefulPolicy` for `specrl_jax.eval.evaluate`.
 
     Plans at the first step and whenever the automaton state changes: the candidate maximising
@@ -213,10 +240,11 @@ def make_policy(network: nn.Module, alphabet: jax.Array, deterministic: bool = T
     mode (`deterministic`, the reference's setting) or samples.
     """
     alphabet = jnp.asarray(alphabet, bool)
+    obs_kinds = dict(obs_kinds)
 
     def plan(params, obs, task_state, infeasible, masks):
         reach, avoid, valid = masks
-        images = jax.vmap(reduce_observation, in_axes=(None, 0, 0))(obs, reach, avoid)
+        images = jax.vmap(lambda r, a: reduce_observation(obs, obs_kinds, r, a))(reach, avoid)
         out = network.apply(params, images)
         score = out.value - out.multiplier * out.cost_value
         allowed = valid & ~infeasible
@@ -245,7 +273,7 @@ def make_policy(network: nn.Module, alphabet: jax.Array, deterministic: bool = T
             lambda: plan(params, obs, task_state, infeasible, masks),
             lambda: carry._replace(steps=jnp.where(timed_out, 0, carry.steps)),
         )
-        out = network.apply(params, reduce_observation(obs, carry.reach, carry.avoid))
+        out = network.apply(params, reduce_observation(obs, obs_kinds, carry.reach, carry.avoid))
         action = out.pi.mode() if deterministic else out.pi.sample(key)
         return action, carry._replace(steps=carry.steps + 1)
 

@@ -1,10 +1,12 @@
-"""GenZ-LTL and DeepLTL on LetterWorld: learning on a tiny world, observation reduction, encoder."""
+"""GenZ-LTL and DeepLTL through the task loop: learning on a tiny world, observation reduction,
+encoders, test-time agents."""
 
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import specrl_jax
 from specrl_jax import automata
@@ -15,18 +17,39 @@ from specrl_jax.eval import evaluate
 from specrl_jax.tasks import TaskEnv
 
 
-def test_genz_learns_to_reach_on_a_tiny_letter_world():
+def _tiny_world():
     # 5x5 torus, one 'a' and one 'b', 6-step episodes: a random walk rarely reaches its subgoal.
     world, params = make_letter_world(LetterConfig(grid_size=5, letters=("a", "b"), counts=1), max_steps=6)
-    params = world.with_map_bank(jax.random.key(0), params, num_maps=64)
-    method = genz.GenZ(genz.GenZTrainEnv(world, params, max_avoid=0), genz.GenZNetwork(4))
-    cfg = genz.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * 40, update_epochs=4,
-                          num_minibatches=2)
+    return world, world.with_map_bank(jax.random.key(0), params, num_maps=64)
+
+
+def _learning(module, method, cfg, updates):
     _, metrics = jax.jit(make_train(cfg, method))(jax.random.key(1))
-    rows = [genz.summarise({k: float(v[i]) for k, v in metrics.items()}) for i in range(40)]
+    rows = [module.summarise({k: float(v[i]) for k, v in metrics.items()}) for i in range(updates)]
     first = np.mean([r["success_rate"] for r in rows[:5]])
     last = np.mean([r["success_rate"] for r in rows[-5:]])
-    assert first < 0.3 and last > 0.6, (first, last)
+    return first, last
+
+
+def test_genz_learns_to_reach_on_a_tiny_letter_world_through_the_task_loop():
+    world, params = _tiny_world()
+    method = genz.make_method(world, params)  # subgoals: reach one letter, avoid the other or none
+    cfg = genz.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * 40, update_epochs=4,
+                          num_minibatches=2)
+    first, last = _learning(genz, method, cfg, 40)
+    assert first < 0.4 and last > 0.6, (first, last)
+
+
+def test_deepltl_learns_reach_avoid_on_a_tiny_letter_world_through_the_task_loop():
+    world, params = _tiny_world()
+    method = deepltl.make_method(world, params)  # curriculum stage 0: reach one, avoid the other
+    cfg = deepltl.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * 75,
+                             update_epochs=4, num_minibatches=2)
+    first, last = _learning(deepltl, method, cfg, 75)  # stage 0 holds until its 0.95 is met
+    assert first < 0.4 and last > 0.6, (first, last)
+
+
+KINDS = {"ap": "grid", "ego": "grid"}
 
 
 def test_reduced_observation_marks_reach_avoid_and_agent():
@@ -35,18 +58,45 @@ def test_reduced_observation_marks_reach_avoid_and_agent():
     ego = np.zeros((3, 3, 1), np.uint8)
     ego[1, 1] = 1
     image = genz.reduce_observation(
-        {"ap": jnp.asarray(ap), "ego": jnp.asarray(ego)},
+        {"ap": jnp.asarray(ap), "ego": jnp.asarray(ego)}, KINDS,
         jnp.array([True, False, False]), jnp.array([False, True, False]),
-    )[..., 0]
+    )["grid"][..., 0]
     expected = np.zeros((3, 3))
     expected[0, 0], expected[0, 1], expected[1, 1] = 1.0, 0.5, 0.2
     np.testing.assert_allclose(image, expected)
     ap[1, 1, 0] = 1  # standing on a reach letter: the agent is drawn on top
     image = genz.reduce_observation(
-        {"ap": jnp.asarray(ap), "ego": jnp.asarray(ego)},
+        {"ap": jnp.asarray(ap), "ego": jnp.asarray(ego)}, KINDS,
         jnp.array([True, False, False]), jnp.array([False, True, False]),
-    )[..., 0]
+    )["grid"][..., 0]
     assert np.isclose(float(image[1, 1]), 0.2)
+
+
+def test_reduced_lidar_observation_pools_reach_and_avoid_sets_after_the_sensors():
+    """Zone worlds (GenZ-LTL's `pre_process_obs_zones`): [sensors, max LiDAR of the reach
+    colours, max LiDAR of the avoid colours], zeros for an empty set."""
+    rng = np.random.default_rng(0)
+    ap = rng.random((4, 16)).astype(np.float32)
+    ego = rng.random(16).astype(np.float32)
+    obs = {"ap": jnp.asarray(ap), "ego": jnp.asarray(ego)}
+    kinds = {"ap": "lidar", "ego": "vector"}
+    reach, avoid = jnp.array([False, True, False, False]), jnp.array([True, False, True, False])
+    vec = np.asarray(genz.reduce_observation(obs, kinds, reach, avoid)["vector"])
+    np.testing.assert_allclose(vec, np.concatenate([ego, ap[1], np.maximum(ap[0], ap[2])]))
+    none = np.asarray(genz.reduce_observation(obs, kinds, reach, jnp.zeros(4, bool))["vector"])
+    np.testing.assert_allclose(none[32:], 0.0)
+
+
+def test_methods_refuse_a_world_whose_observation_kind_has_no_encoder():
+    world, params = specrl_jax.make("LetterLTL0-v0")
+
+    class Sonar(type(world)):
+        obs_kinds = {"ap": "sonar", "ego": "grid"}
+
+    odd = Sonar(world.config)
+    for module in (genz, deepltl):
+        with pytest.raises(ValueError, match="no observation encoder for {'ap': 'sonar'}"):
+            module.make_method(odd, params)
 
 
 def _genz_setup(formula, replan_steps):
@@ -54,8 +104,8 @@ def _genz_setup(formula, replan_steps):
     spec = automata.compile_spec(formula, env.propositions, alphabet=env.alphabet)
     task = TaskEnv(env, automata.stack([spec]))
     network = genz.GenZNetwork()
-    net_params = network.init(jax.random.key(1), jnp.zeros((7, 7, 1)))
-    policy = genz.make_policy(network, env.alphabet, replan_steps=replan_steps)
+    net_params = network.init(jax.random.key(1), {"grid": jnp.zeros((7, 7, 1))})
+    policy = genz.make_policy(network, env.alphabet, env.obs_kinds, replan_steps=replan_steps)
     return env, params, task, net_params, policy
 
 
@@ -97,7 +147,7 @@ def test_sequence_encoder_reads_only_the_remaining_pairs():
     rng = np.random.default_rng(0)
     reach, avoid = rng.random((2, length, num_symbols)) < 0.5
     obs = deepltl.SequenceObs(
-        image=jnp.zeros((7, 7, 3)), reach=jnp.asarray(reach), avoid=jnp.asarray(avoid),
+        parts={"grid": jnp.zeros((7, 7, 3))}, reach=jnp.asarray(reach), avoid=jnp.asarray(avoid),
         epsilon=jnp.zeros(length, bool), start=jnp.int32(1), end=jnp.int32(2),
         epsilon_allowed=jnp.asarray(False),
     )
@@ -120,8 +170,8 @@ def test_evaluate_runs_each_trained_seed_on_the_suite_protocol(monkeypatch):
     monkeypatch.setattr("specrl_jax.specs.suite", lambda name: ["F a", "!b U c"])
     world, params = make_letter_world(LetterConfig())
     method = genz.make_method(world, params)
-    obs, _ = method.env.reset(jax.random.key(0))
-    one = method.network.init(jax.random.key(0), obs[None])
+    obs, _ = method.env.reset(jax.random.key(0), method.init_task_params())
+    one = method.network.init(jax.random.key(0), jax.tree.map(lambda x: x[None], obs))
     two_seeds = jax.tree.map(lambda x: jnp.stack([x, x]), one)
     (suite,) = experiment.evaluate("genz", "LetterLTL0-v0", two_seeds, ["tiny"], 3, log=lambda s: None)
     table = suite.result.table
@@ -144,11 +194,11 @@ def test_saved_genz_parameters_from_before_the_matmul_cnn_give_the_same_network(
     # the committed seed was trained and saved while LetterCNN used nn.Conv (before 46aa3f8)
     import flax.linen as nn
 
-    from specrl_jax.baselines import experiment
+    from specrl_jax.baselines import encoders, experiment
 
     path = Path(specrl_jax.__file__).parents[1] / "benchmarks/results/letter_genz_params_seed1.msgpack"
     params = jax.tree.map(lambda x: x[0], experiment.load_params("genz", "LetterLTL0-v0", path, 1))
-    images = jax.random.choice(jax.random.key(3), jnp.array([0.0, 0.2, 0.5, 1.0]), (16, 7, 7, 1))
+    images = {"grid": jax.random.choice(jax.random.key(3), jnp.array([0.0, 0.2, 0.5, 1.0]), (16, 7, 7, 1))}
     current = genz.GenZNetwork().apply(params, images)
 
     class LetterCNN(nn.Module):  # the same name, so the same parameter path `LetterCNN_0/Conv_i`
@@ -159,7 +209,7 @@ def test_saved_genz_parameters_from_before_the_matmul_cnn_give_the_same_network(
                 x = nn.relu(nn.Conv(width, (2, 2), padding="VALID")(x))
             return x.reshape(*x.shape[:-3], -1)
 
-    monkeypatch.setattr(genz, "LetterCNN", LetterCNN)
+    monkeypatch.setattr(encoders, "LetterCNN", LetterCNN)
     library = genz.GenZNetwork().apply(params, images)
     assert float(jnp.std(library.value)) > 1e-3  # trained weights, not a zero template
     for a, b in ((current.pi.logits, library.pi.logits), (current.value, library.value),

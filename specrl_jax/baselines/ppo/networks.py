@@ -154,13 +154,56 @@ class GaussianHead(nn.Module):
         return DiagGaussian(mean, std)
 
 
+@struct.dataclass
+class EpsilonGaussian:
+    """DeepLTL's mixed distribution over `float32[..., D + 1]`: the last entry is 1 for the epsilon
+    action (probability `p_epsilon`, only where `allowed`), else 0 and the first D entries are
+    drawn from `DiagGaussian(mean, std)`."""
+
+    gaussian: DiagGaussian
+    p_epsilon: jax.Array  # float32[...]
+    allowed: jax.Array  # bool[...]
+
+    def _p(self) -> jax.Array:
+        return jnp.where(self.allowed, self.p_epsilon, 0.0)
+
+    def sample(self, key: jax.Array) -> jax.Array:
+        key_eps, key_move = jax.random.split(key)
+        eps = jax.random.uniform(key_eps, self.p_epsilon.shape) < self._p()
+        return jnp.concatenate([self.gaussian.sample(key_move), eps[..., None].astype(jnp.float32)], -1)
+
+    def mode(self) -> jax.Array:
+        eps = self.allowed & (self.p_epsilon > 0.7)
+        return jnp.concatenate([self.gaussian.mean, eps[..., None].astype(jnp.float32)], -1)
+
+    def log_prob(self, action: jax.Array) -> jax.Array:
+        eps = action[..., -1] > 0.5
+        move = self.gaussian.log_prob(action[..., :-1]) + jnp.where(
+            self.allowed, jnp.log1p(-self.p_epsilon), 0.0)
+        return jnp.where(eps, jnp.log(self.p_epsilon), move)
+
+    def entropy(self) -> jax.Array:
+        return self.gaussian.entropy() * (1.0 - self._p())
+
+
+class EpsilonGaussianHead(nn.Module):
+    """`GaussianHead` plus DeepLTL's epsilon head `p = clip(sigmoid(Wx), 1e-3, 1 - 1e-3)`."""
+
+    action_dim: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array, allowed: jax.Array) -> EpsilonGaussian:
+        p_epsilon = jnp.clip(nn.sigmoid(dense(1)(x)[..., 0]), 1e-3, 1 - 1e-3)
+        return EpsilonGaussian(GaussianHead(self.action_dim)(x), p_epsilon, allowed)
+
+
 class PolicyOutput(NamedTuple):
     """What every method's network returns for a batch of observations `[..., ...]`.
 
     `value` float32[...]; `cost_value` and `multiplier` float32[...] (zeros for unconstrained methods).
     """
 
-    pi: Categorical | DiagGaussian
+    pi: Categorical | DiagGaussian | EpsilonGaussian
     value: jax.Array
     cost_value: jax.Array
     multiplier: jax.Array

@@ -1,9 +1,11 @@
-"""Reproduce GenZ-LTL and DeepLTL on LetterWorld: train (seeds side by side), evaluate on the
-paper's suites, write the results JSON, Markdown tables, curves and timings.
+"""Reproduce GenZ-LTL and DeepLTL on any single-agent world: train (seeds side by side) through
+the task loop, evaluate on the paper's suites, write the results JSON, Markdown tables, curves
+and timings.
 
 Example (GPU, the full protocol):
-    python benchmarks/train_letter.py --methods genz deepltl --seeds 5 --total-steps 15000000 \
-        --episodes 100 --out /tmp/letter
+    python benchmarks/train_baselines.py --env LetterLTL0-v0 --methods genz deepltl --seeds 5 \
+        --total-steps 15000000 --episodes 100 --out /tmp/letter
+    python benchmarks/train_baselines.py --env PointLTL0-v0 --suites zone/finite/ind --out /tmp/zone
 """
 
 from __future__ import annotations
@@ -45,18 +47,20 @@ def main() -> None:
     parser.add_argument("--stochastic-too", action="store_true",
                         help="also evaluate with the other action mode (diagnostic)")
     parser.add_argument("--complexity", action="store_true", help="also the paper's complexity grid")
+    parser.add_argument("--suites", nargs="+", default=None, help="default: the world's paper suites")
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     device = jax.devices()[0]
-    overrides = experiment.default_overrides(device.platform, args.total_steps)
+    world_family = experiment.family(args.env)
+    overrides = experiment.default_overrides(device.platform, args.total_steps, world_family)
     for flag, name in (("num_envs", "num_envs"), ("num_steps", "num_steps"),
                        ("minibatches", "num_minibatches"), ("epochs", "update_epochs")):
         if getattr(args, flag) is not None:
             overrides[name] = getattr(args, flag)
-    suites = experiment.LETTER_SUITES + (COMPLEXITY if args.complexity else ())
+    suites = tuple(args.suites or experiment.SUITES[world_family]) + (COMPLEXITY if args.complexity else ())
     results, summaries = [], {}
     loads = dict(item.split("=", 1) for item in args.load)
     for method in args.methods:
@@ -76,7 +80,7 @@ def main() -> None:
             if args.stochastic_too:
                 other = method == "genz"  # GenZ-LTL's reference mode is deterministic, DeepLTL's sampled
                 label = experiment.METHOD_NAMES[method] + (" (sampled)" if other else " (mode)")
-                results += experiment.evaluate(method, args.env, params, experiment.LETTER_SUITES[:2],
+                results += experiment.evaluate(method, args.env, params, suites[:2],
                                                args.episodes, deterministic=not other, label=label)
             summary["eval_wall_s"] = time.perf_counter() - start
     config = {"args": vars(args), "device": str(device), "training": summaries}
