@@ -47,6 +47,8 @@ def main() -> None:
     parser.add_argument("--stochastic-too", action="store_true",
                         help="also evaluate with the other action mode (diagnostic)")
     parser.add_argument("--complexity", action="store_true", help="also the paper's complexity grid")
+    parser.add_argument("--no-threshold-too", action="store_true",
+                        help="DeepLTL: also evaluate without the 0.4 value-threshold avoid augmentation")
     parser.add_argument("--suites", nargs="+", default=None, help="default: the world's paper suites")
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
@@ -82,6 +84,9 @@ def main() -> None:
                 label = experiment.METHOD_NAMES[method] + (" (sampled)" if other else " (mode)")
                 results += experiment.evaluate(method, args.env, params, suites[:2],
                                                args.episodes, deterministic=not other, label=label)
+            if args.no_threshold_too and method == "deepltl":
+                results += experiment.evaluate(method, args.env, params, suites, args.episodes,
+                                               label="DeepLTL (no threshold)", value_threshold=None)
             summary["eval_wall_s"] = time.perf_counter() - start
     config = {"args": vars(args), "device": str(device), "training": summaries}
     (out / "training.json").write_text(json.dumps(config, indent=1, default=str))

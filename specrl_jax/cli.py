@@ -107,21 +107,6 @@ def make_policy(name: str, env: Any) -> Any:
     raise ValueError(f"unknown policy {name!r}; known policies: {', '.join(POLICIES)}")
 
 
-def check_suites(names: Sequence[str], env: Any) -> None:
-    """Unknown suites, or suites over other propositions than the env's, are errors."""
-    from specrl_jax import specs
-
-    known = specs.list_suites()
-    for name in names:
-        if name not in known:
-            raise ValueError(f"unknown suite {name!r}; see `specrl-jax specs` for the "
-                             f"{len(known)} known suites")
-        props = specs.suite_info(name).propositions
-        if not set(props) <= set(env.propositions):
-            raise ValueError(f"suite {name!r} is over propositions {props}, but the env has "
-                             f"{env.propositions}")
-
-
 @command(
     "eval", "Evaluate a policy on specification suites and write JSON, Markdown and plots.",
     arg("--env", required=True, help="env ID, e.g. LetterLTL0-v0"),
@@ -129,7 +114,8 @@ def check_suites(names: Sequence[str], env: Any) -> None:
     arg("--suite", required=True, action="append", help="suite name (repeat for several)"),
     arg("--seeds", type=int, default=5, help="number of seeds; seeds are 1..N (default 5)"),
     arg("--episodes", type=int, default=100, help="episodes per seed and spec (default 100)"),
-    arg("--horizon", type=int, default=None, help="episode horizon (default: the env's)"),
+    arg("--horizon", type=int, default=None,
+        help="episode horizon of every suite (default: the env's for finite suites, 10x for infinite)"),
     arg("--out", default="results", help="output directory (default results/)"),
     arg("--trajectories", type=int, default=4, help="episodes drawn on the map (LetterWorld)"),
     arg("--no-progress", action="store_true", help="no progress bar"),
@@ -138,40 +124,18 @@ def eval_command(args: argparse.Namespace) -> int:
     if args.seeds < 1 or args.episodes < 1:
         raise ValueError(f"--seeds and --episodes must be >= 1, got {args.seeds}, {args.episodes}")
     enable_compilation_cache()
-    from tqdm import tqdm
-
-    from specrl_jax import automata, specs
     from specrl_jax.envs.registry import make
     from specrl_jax.eval import report
-    from specrl_jax.eval.evaluate import evaluate
+    from specrl_jax.eval.suites import evaluate_suites
 
-    overrides = {} if args.horizon is None else {"max_steps": args.horizon}
-    env, params = make(args.env, **overrides)
+    env, params = make(args.env)
     policy = make_policy(args.policy, env)
-    check_suites(args.suite, env)
     seeds = list(range(1, args.seeds + 1))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-
-    # every suite in one compiled call: compile the specs (Spot, cached on disk), then run
-    groups, compiled = {}, []
-    with tqdm(total=sum(len(specs.suite(n)) for n in args.suite), unit="spec",
-              desc="compiling specs", disable=args.no_progress) as bar:
-        for name in args.suite:
-            groups[name] = list(range(len(compiled), len(compiled) + len(specs.suite(name))))
-            for formula in specs.suite(name):
-                compiled.append(automata.compile_spec(formula, env.propositions,
-                                                      alphabet=env.alphabet))
-                bar.update()
-    lanes = len(seeds) * len(compiled) * args.episodes
-    if not args.no_progress:
-        print(f"evaluating {args.policy} on {args.env}: {lanes} episodes x {params.max_steps} "
-              "steps in one compiled call", file=sys.stderr)
-    result = evaluate(policy, (env, params), automata.stack(compiled), seeds, args.episodes)
-    names = [f for name in args.suite for f in specs.suite(name)]
-    result = dataclasses.replace(result, env_id=args.env, spec_names=tuple(names))
-    results = [report.SuiteResult(args.env, name, args.policy, result.select(indices))
-               for name, indices in groups.items()]
+    log = (lambda line: None) if args.no_progress else (lambda line: print(line, file=sys.stderr))
+    results = evaluate_suites(policy, args.env, env, params, args.suite, args.episodes, seeds,
+                              horizon=args.horizon, label=args.policy, log=log)
 
     config = {key: value for key, value in vars(args).items() if key != "run"}
     config["seed_list"] = seeds
@@ -227,18 +191,20 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
 
 @command(
     "train",
-    "Train a baseline (GenZ-LTL or DeepLTL) with the shared PPO; writes a run directory.",
+    "Train a baseline (GenZ-LTL or DeepLTL) with the shared PPO on any single-agent world; writes "
+    "a run directory.",
     arg("--method", required=True, choices=("genz", "deepltl")),
-    arg("--env", default="LetterLTL0-v0"),
+    arg("--env", default="LetterLTL0-v0", help="any single-agent env ID (`specrl-jax envs`)"),
     arg("--seeds", type=int, default=1, help="independent runs trained side by side"),
     arg("--seed", type=int, default=0),
     arg("--total-steps", type=int, default=None,
         help="env interactions per run (default 15M on an accelerator, 1M on a CPU)"),
     arg("--num-envs", type=int, default=None),
     arg("--num-steps", type=int, default=None),
-    arg("--map-bank", type=int, default=65536, help="maps in the fast-reset bank (0: exact resets)"),
+    arg("--map-bank", type=int, default=65536,
+        help="LetterWorld: maps in the fast-reset bank (0: exact resets)"),
     arg("--out", default=None, help="run directory (default runs/<method>); resumes if present"),
-    arg("--eval-episodes", type=int, default=0, help="then evaluate on the LetterWorld suites"),
+    arg("--eval-episodes", type=int, default=0, help="then evaluate on the world's paper suites"),
 )
 def train_command(args: argparse.Namespace) -> int:
     enable_compilation_cache()
@@ -248,8 +214,9 @@ def train_command(args: argparse.Namespace) -> int:
     from specrl_jax.eval import report
 
     platform = jax.devices()[0].platform
+    world_family = experiment.family(args.env)
     total = args.total_steps or (15_000_000 if platform != "cpu" else 1_000_000)
-    overrides = experiment.default_overrides(platform, total)
+    overrides = experiment.default_overrides(platform, total, world_family)
     overrides.update({k: v for k, v in (("num_envs", args.num_envs), ("num_steps", args.num_steps)) if v})
     out = Path(args.out or f"runs/{args.method}")
     params, summary = experiment.train(args.method, args.env, out, overrides, args.seeds, args.seed,
@@ -257,8 +224,8 @@ def train_command(args: argparse.Namespace) -> int:
     print(f"trained {args.seeds} x {summary['env_steps_per_seed']:,} steps, "
           f"{summary['env_steps_per_s']:,.0f} env-steps/s; run directory {out}")
     if args.eval_episodes > 0:
-        results = experiment.evaluate(args.method, args.env, params, experiment.LETTER_SUITES,
-                                      args.eval_episodes)
+        results = experiment.evaluate(args.method, args.env, params,
+                                      experiment.SUITES[world_family], args.eval_episodes)
         report.write_json(out / "eval.json", results, {"train": summary})
         print(report.markdown_tables(results))
     return 0

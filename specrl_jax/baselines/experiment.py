@@ -125,46 +125,22 @@ def make_policy(method: str, world: Any, method_obj: Any, deterministic: bool | 
 
 def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episodes: int,
              log: Callable[[str], None] = print, deterministic: bool | None = None,
-             label: str | None = None) -> list:
-    """Evaluate every trained seed (leading axis of `params`) on `suites`; one compiled
-    evaluator for all suites together. Returns `SuiteResult`s with one row per trained seed."""
-    from specrl_jax import automata, specs
-    from specrl_jax.eval.evaluate import EvalResult, make_evaluator
-    from specrl_jax.eval.metrics import EpisodeTable
-    from specrl_jax.eval.report import SuiteResult
-    from specrl_jax.tasks import TaskEnv
+             label: str | None = None, horizon: int | None = None, **policy_options: Any) -> list:
+    """Evaluate every trained seed (leading axis of `params`, seed i + 1 for entry i) on `suites`
+    (`eval.suites.evaluate_suites`: infinite suites over 10 finite horizons unless `horizon`).
+    Returns `SuiteResult`s with one row per trained seed."""
+    from specrl_jax.eval.suites import evaluate_suites
 
     world, env_params = make(env_id)
     world_family = family(env_id)
     method_obj = method_module(method).make_method(world, env_params, world_family)
-    formulas, groups = [], {}
-    for name in suites:
-        suite = specs.suite(name)
-        groups[name] = list(range(len(formulas), len(formulas) + len(suite)))
-        formulas += suite
-    compiled = automata.stack(
-        [automata.compile_spec(f, world.propositions, alphabet=world.alphabet) for f in formulas]
-    )
-    task = TaskEnv(world, compiled)
-    policy = make_policy(method, world, method_obj, deterministic, world_family)
-    evaluator = make_evaluator(policy, task, env_params, episodes_per_seed=episodes)
+    policy = make_policy(method, world, method_obj, deterministic, world_family, **policy_options)
     num_seeds = jax.tree.leaves(params)[0].shape[0]
-    tables = []
-    for s in range(num_seeds):
-        start = time.perf_counter()
-        seed_params = jax.tree.map(lambda x, s=s: x[s], params)
-        table = evaluator(seed_params, jnp.asarray([s + 1], jnp.uint32))
-        tables.append(jax.device_get(table))
-        log(f"evaluated seed {s + 1}: {len(formulas)} specs x {episodes} episodes in "
-            f"{time.perf_counter() - start:.1f}s")
-    table = EpisodeTable(*(np.concatenate(parts, axis=0) for parts in zip(*tables)))
-    result = EvalResult(
-        env_id=env_id, spec_names=tuple(formulas), is_finite=np.asarray(compiled.is_finite),
-        seeds=tuple(range(1, num_seeds + 1)), episodes_per_seed=episodes,
-        horizon=int(env_params.max_steps), table=table,
+    return evaluate_suites(
+        policy, env_id, world, env_params, suites, episodes, seeds=range(1, num_seeds + 1),
+        policy_params=params, params_per_seed=True, horizon=horizon,
+        label=label or METHOD_NAMES[method], log=log,
     )
-    label = label or METHOD_NAMES[method]
-    return [SuiteResult(env_id, name, label, result.select(idx)) for name, idx in groups.items()]
 
 
 def load_params(method: str, env_id: str, path: str | Path, num_seeds: int) -> Any:

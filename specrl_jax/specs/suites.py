@@ -40,6 +40,11 @@ COMPLEXITY_DISJ = (0, 1, 2, 3)
 COMPLEXITY_KINDS = ("reach_only", "reach_avoid")
 
 
+#: infinite-horizon suites run this many finite horizons: the smallest round factor consistent with
+#: the paper's tables (its Zone persistence figures count more visits than 1,000 steps hold)
+INFINITE_HORIZON_FACTOR = 10
+
+
 @dataclasses.dataclass(frozen=True)
 class SuiteInfo:
     """A named suite and what it needs from a world.
@@ -65,6 +70,13 @@ class SuiteInfo:
     @property
     def is_finite(self) -> bool:
         return self.horizon == "finite"
+
+    @property
+    def horizon_factor(self) -> int:
+        """Episode length in units of the world's finite horizon: 1 for finite suites,
+        `INFINITE_HORIZON_FACTOR` for infinite ones (LetterWorld 750, Zone 10,000, Arm 2,000
+        steps), so that an agent can complete many cycles."""
+        return 1 if self.is_finite else INFINITE_HORIZON_FACTOR
 
 
 # paper family -> (env family, propositions, alphabet)

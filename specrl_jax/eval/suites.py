@@ -1,0 +1,92 @@
+"""Evaluating a policy on named suites: the one place that compiles suites, groups them by
+episode horizon and splits the result back into one `SuiteResult` per suite.
+
+Finite suites run the world's horizon (`params.max_steps`); infinite ones
+`SuiteInfo.horizon_factor` times it (10: LetterWorld 750, Zone 10,000 steps), unless `horizon`
+overrides both. Memory stays bounded at any horizon: the evaluator keeps each episode's running
+counts, never per-step arrays.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from specrl_jax import automata, specs
+from specrl_jax.eval.evaluate import EvalResult, make_evaluator
+from specrl_jax.eval.metrics import EpisodeTable
+from specrl_jax.eval.report import SuiteResult
+from specrl_jax.tasks import TaskEnv
+
+
+def suite_horizon(name: str, finite_horizon: int, horizon: int | None = None) -> int:
+    """Episode length for suite `name` in a world whose finite horizon is `finite_horizon`."""
+    if horizon is not None:
+        return int(horizon)
+    return int(finite_horizon) * specs.suite_info(name).horizon_factor
+
+
+def check_suites(names: Sequence[str], env: Any) -> None:
+    """Raise a clear error for a suite over propositions the world does not have."""
+    for name in names:
+        info = specs.suite_info(name)
+        if not set(info.propositions) <= set(env.propositions):
+            raise ValueError(f"suite {name!r} is over propositions {info.propositions}, but the "
+                             f"env has {env.propositions}")
+
+
+def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Sequence[str],
+                    episodes: int, seeds: Sequence[int], policy_params: Any = None,
+                    params_per_seed: bool = False, horizon: int | None = None, label: str = "",
+                    log: Callable[[str], None] = print) -> list[SuiteResult]:
+    """Evaluate `policy` on every suite; one compiled evaluator per distinct horizon.
+
+    Args:
+        policy: a policy function or `StatefulPolicy` (see `tasks.policy`).
+        env_id, env, params: the world (the horizon comes from `params.max_steps`).
+        suites: suite names; episodes: per (seed, spec); seeds: integer seeds.
+        policy_params: passed to the policy; with `params_per_seed`, a pytree with a leading
+            axis of `len(seeds)` whose entry i serves seed i (one trained run per seed).
+        horizon: overrides every suite's horizon.
+        label: the method name in the reports.
+
+    Returns:
+        One `SuiteResult` per suite, in the order given.
+    """
+    check_suites(suites, env)
+    by_horizon: dict[int, list[str]] = {}
+    for name in suites:
+        by_horizon.setdefault(suite_horizon(name, params.max_steps, horizon), []).append(name)
+    results = {}
+    for steps, names in by_horizon.items():
+        formulas, groups = [], {}
+        for name in names:
+            groups[name] = list(range(len(formulas), len(formulas) + len(specs.suite(name))))
+            formulas += specs.suite(name)
+        compiled = automata.stack(
+            [automata.compile_spec(f, env.propositions, alphabet=env.alphabet) for f in formulas])
+        run_params = params.replace(max_steps=steps)
+        evaluator = make_evaluator(policy, TaskEnv(env, compiled), run_params,
+                                   episodes_per_seed=episodes)
+        tables = []
+        for i, seed in enumerate(seeds):
+            start = time.perf_counter()
+            seed_params = (jax.tree.map(lambda x, i=i: x[i], policy_params) if params_per_seed
+                           else policy_params)
+            tables.append(jax.device_get(evaluator(seed_params, jnp.asarray([seed], jnp.uint32))))
+            log(f"evaluated seed {seed}: {len(formulas)} specs x {episodes} episodes x {steps} "
+                f"steps in {time.perf_counter() - start:.1f}s")
+        table = EpisodeTable(*(np.concatenate(parts, axis=0) for parts in zip(*tables)))
+        result = EvalResult(
+            env_id=env_id, spec_names=tuple(formulas), is_finite=np.asarray(compiled.is_finite),
+            seeds=tuple(int(s) for s in seeds), episodes_per_seed=episodes, horizon=steps,
+            table=table,
+        )
+        for name, indices in groups.items():
+            results[name] = SuiteResult(env_id, name, label, result.select(indices))
+    return [results[name] for name in suites]
