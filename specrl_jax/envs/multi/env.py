@@ -81,7 +81,7 @@ class MultiZoneEnv(Env):
         self.num_agents = config.num_agents
         self.propositions = config.propositions
         self.colour_propositions = self.world.propositions
-        self._num_parallel = layout_lib.check_feasible(config)
+        layout_lib.check_feasible(config)
         self._agent_alphabet = zone_labels.alphabet(config.zone_config)
         self._base = self._agent_alphabet.shape[0]
         if self._base**self.num_agents >= 2**31:
@@ -133,7 +133,7 @@ class MultiZoneEnv(Env):
     # ---- reset --------------------------------------------------------------------------
     def reset_env(self, key: jax.Array, params: MultiZoneParams) -> tuple[Obs, MultiZoneState]:
         key_layout, key_pose = jax.random.split(key)
-        zone_xy, agent_xy, _ = layout_lib.sample_positions(key_layout, self.config, self._num_parallel)
+        zone_xy, agent_xy, _ = layout_lib.sample_positions(key_layout, self.config)
         return self.reset_to(key_pose, self._random_layout(key_pose, zone_xy, agent_xy), params)
 
     def _random_layout(self, key: jax.Array, zone_xy: jax.Array, agent_xy: jax.Array) -> dict:
