@@ -5,7 +5,8 @@ One measurement = a jitted `lax.scan` of `--steps` steps of `BatchedEnv(MultiAut
 observation, labels, reward and flags are folded into a checksum carried by the scan, so XLA
 cannot drop any of the work. "exact" = the auto-reset computes a full reset (a fresh layout by
 the original's multi-agent rejection sampler, every robot's forward pass) for every world at
-every step and selects it where the world's episode ended. Compile time is measured apart; the
+every step and selects it where the world's episode ended; "bank" = the same with opt-in
+`env.with_map_bank(key, params, --bank-size)` resets (exact layouts sampled up front). Compile time is measured apart; the
 run is timed after one warm-up call, with `block_until_ready`, best and median of --repeats.
 A Markdown table is appended to --results with device, versions, date and command.
 """
@@ -56,8 +57,10 @@ def make_rollout(env: BatchedEnv, params: Any, num_steps: int):
 def measure(env_id: str, mode: str, num_envs: int, args: argparse.Namespace) -> dict[str, Any]:
     overrides = {"collisions": True} if args.collisions else {}
     env, params = specrl_jax.make(env_id, **overrides)
-    batched = BatchedEnv(MultiAutoReset(env) if mode == "exact" else env, num_envs)
-    key_reset, key_run = jax.random.split(jax.random.key(args.seed))
+    key_bank, key_reset, key_run = jax.random.split(jax.random.key(args.seed), 3)
+    if mode == "bank":
+        params = jax.block_until_ready(env.with_map_bank(key_bank, params, args.bank_size))
+    batched = BatchedEnv(env if mode == "off" else MultiAutoReset(env), num_envs)
     start = time.perf_counter()
     _, state = jax.block_until_ready(jax.jit(batched.reset)(key_reset, params))
     reset_s = time.perf_counter() - start
@@ -111,7 +114,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", default=["PointLTL0MA3-v0", "PointLTL0MA2-v0"])
     parser.add_argument("--batches", nargs="+", type=int, default=[16384, 65536])
-    parser.add_argument("--resets", nargs="+", choices=["exact", "off"], default=["exact", "off"])
+    parser.add_argument("--resets", nargs="+", choices=["exact", "bank", "off"],
+                        default=["exact", "off"])
+    parser.add_argument("--bank-size", type=int, default=65536)
     parser.add_argument("--steps", type=int, default=50, help="env steps per compiled call")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)

@@ -104,6 +104,21 @@ def test_layouts_are_the_originals(world):
     np.testing.assert_allclose(intended[8:, :8], 1.2)
 
 
+def test_map_bank_resets_draw_symmetric_images_of_exact_layouts(world):
+    env, params, _ = world
+    bank_params = env.with_map_bank(jax.random.key(2), params, num_maps=16)
+    bank = np.asarray(bank_params.map_bank)
+    assert bank.shape == (16, 10, 2)
+    reset = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))
+    _, state = reset(jax.random.split(jax.random.key(4), 8), bank_params)
+    layout = jax.vmap(env.layout)(state)
+    xy = np.concatenate([np.asarray(layout["zone_xy"]), np.asarray(layout["agent_xy"])], axis=1)
+    gaps = lambda p: np.linalg.norm(p[..., :, None, :] - p[..., None, :, :], axis=-1)
+    for one in xy:  # distances between all objects are those of one bank entry
+        assert np.abs(gaps(bank) - gaps(one)).max(axis=(1, 2)).min() < 1e-5
+    assert len({np.round(one, 4).tobytes() for one in xy}) == 8
+
+
 def test_lidar_labels_and_symbol_match_the_original_formulas(world):
     env, params, fns = world
     # agent 0 inside a blue zone, agent 1 5 mm outside it, heading in (enters at step 3)

@@ -19,6 +19,7 @@ from specrl_jax.envs.multi import layout as layout_lib
 from specrl_jax.envs.multi.config import MultiZoneConfig
 from specrl_jax.envs.multi.original import OriginalLayout
 from specrl_jax.envs.zone import labels as zone_labels
+from specrl_jax.envs.zone import layout as zone_layout
 from specrl_jax.envs.zone.env import ZoneEnv, ZoneState
 from specrl_jax.envs.zone.sensors import compute_lidar
 
@@ -35,11 +36,14 @@ class MultiZoneParams:
         collisions: bool, whether an agent terminates when another one is within
             `collision_distance` (defaults from the config; off: the paper's protocol).
         collision_distance: float, planar centre distance, metres.
+        map_bank: None (default: an exact layout at every reset) or float32[M, Z + N, 2] zone
+            and agent centres from `MultiZoneEnv.with_map_bank`, the opt-in fast reset.
     """
 
     max_steps: int = 1000
     collisions: bool | jax.Array = False
     collision_distance: float | jax.Array = 0.28
+    map_bank: jax.Array | None = None
 
 
 @struct.dataclass
@@ -133,8 +137,31 @@ class MultiZoneEnv(Env):
     # ---- reset --------------------------------------------------------------------------
     def reset_env(self, key: jax.Array, params: MultiZoneParams) -> tuple[Obs, MultiZoneState]:
         key_layout, key_pose = jax.random.split(key)
-        zone_xy, agent_xy, _ = layout_lib.sample_positions(key_layout, self.config)
+        if params.map_bank is None:
+            zone_xy, agent_xy, _ = layout_lib.sample_positions(key_layout, self.config)
+        else:
+            xy = zone_layout.from_bank(key_layout, params.map_bank)
+            zone_xy, agent_xy = xy[: -self.num_agents], xy[-self.num_agents :]
         return self.reset_to(key_pose, self._random_layout(key_pose, zone_xy, agent_xy), params)
+
+    def with_map_bank(
+        self, key: jax.Array, params: MultiZoneParams | None = None, num_maps: int = 65536
+    ) -> MultiZoneParams:
+        """Params whose resets draw zone and agent centres from `num_maps` exact layouts, each
+        under a uniform rotation or reflection of the square (as `ZoneEnv.with_map_bank`); yaws
+        stay fresh per episode. Positions repeat across resets (at most 8 x num_maps)."""
+        if not isinstance(num_maps, int) or isinstance(num_maps, bool) or num_maps < 1:
+            raise ValueError(f"num_maps must be a positive int, got {num_maps!r}")
+        params = self.default_params if params is None else params
+        sample = jax.jit(jax.vmap(lambda k: layout_lib.sample_positions(k, self.config)))
+        zone_xy, agent_xy, ok = sample(jax.random.split(key, num_maps))
+        if not bool(jnp.all(ok)):
+            raise ValueError(
+                f"{int((~ok).sum())} of {num_maps} layouts could not be placed within "
+                f"max_restarts={self.config.max_restarts}; use fewer agents or zones"
+            )
+        bank = jnp.concatenate([zone_xy, agent_xy], axis=1).astype(jnp.float32)
+        return params.replace(map_bank=bank)
 
     def _random_layout(self, key: jax.Array, zone_xy: jax.Array, agent_xy: jax.Array) -> dict:
         """Fresh yaws (and Car/Ant joints) per agent, one set of moving-zone directions and
