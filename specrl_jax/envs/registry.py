@@ -16,6 +16,7 @@ Factory = Callable[..., tuple[Any, Any]]
 FAMILIES: tuple[str, ...] = (
     "specrl_jax.envs.letter",
     "specrl_jax.envs.zone",
+    "specrl_jax.envs.arm",
     "specrl_jax.envs.multi",
 )
 

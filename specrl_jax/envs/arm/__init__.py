@@ -1,0 +1,55 @@
+"""Arm worlds: the 7-DoF Panda reaching coloured spheres on a table, in MuJoCo MJX.
+
+Declares `PandaLTLReach{0,1}Joints-v0` and their `.partial` variants (mode 0 "grippers-only",
+mode 1 "grippers+arm"); `make_arm(config)` builds a custom arm world from an `ArmConfig`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from specrl_jax.envs.arm.config import ArmConfig
+from specrl_jax.envs.arm.env import ArmEnv, ArmParams, ArmState
+
+
+def make_arm(config: ArmConfig, **params: Any) -> tuple[ArmEnv, ArmParams]:
+    """Build `(env, params)` from a config; `params` may override `max_steps`."""
+    env = ArmEnv(config)
+    unknown = set(params) - {"max_steps"}
+    if unknown:
+        raise ValueError(f"unknown ArmParams fields {sorted(unknown)}; accepted: ['max_steps']")
+    return env, dataclasses.replace(env.default_params, **params) if params else env.default_params
+
+
+def _factory(mode: int, partial: bool):
+    config_fields = {f.name for f in dataclasses.fields(ArmConfig)}
+
+    def build(**overrides: Any) -> tuple[ArmEnv, ArmParams]:
+        fixed = sorted(set(overrides) & {"mode", "partial"})
+        if fixed:
+            raise ValueError(
+                f"{fixed} are fixed by the env ID (mode {mode}, partial {partial}); pick another "
+                "ID, or build a custom world with make_arm(ArmConfig(...))"
+            )
+        config_kw = {k: v for k, v in overrides.items() if k in config_fields}
+        params_kw = {k: v for k, v in overrides.items() if k not in config_fields}
+        return make_arm(ArmConfig(mode=mode, partial=partial, **config_kw), **params_kw)
+
+    return build
+
+
+def env_ids() -> dict[str, tuple[Any, str]]:
+    """The Arm registry entries (read by `envs.registry`)."""
+    names = {0: "grippers-only (grasp target in a region)", 1: "grippers+arm (link contact)"}
+    return {
+        f"PandaLTLReach{mode}Joints-v0{suffix}": (
+            _factory(mode, suffix == ".partial"),
+            f"Panda arm, joint control, 8 spheres, {names[mode]}{suffix}",
+        )
+        for mode in (0, 1)
+        for suffix in ("", ".partial")
+    }
+
+
+__all__ = ["ArmConfig", "ArmEnv", "ArmParams", "ArmState", "env_ids", "make_arm"]

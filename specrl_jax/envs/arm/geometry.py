@@ -1,0 +1,76 @@
+"""Signed distances from points to convex hulls given as triangles (exact, batched, no loops).
+
+A hull is `float[T, 3, 3]` triangles with outward orientation (counter-clockwise seen from
+outside). Outside a hull the distance is the one to the nearest triangle; inside it is minus the
+distance to the nearest face plane (exact for a convex solid).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def closest_on_triangles(p: jax.Array, tri: jax.Array) -> jax.Array:
+    """float[T, 3]: the point of each triangle `tri: float[T, 3, 3]` nearest to `p: float[3]`
+    (Ericson, Real-Time Collision Detection, 5.1.5, written with selects)."""
+    a, b, c = tri[:, 0], tri[:, 1], tri[:, 2]
+    ab, ac, ap = b - a, c - a, p - a
+    dot = lambda u, v: jnp.sum(u * v, axis=-1)
+    d1, d2 = dot(ab, ap), dot(ac, ap)
+    bp = p - b
+    d3, d4 = dot(ab, bp), dot(ac, bp)
+    cp = p - c
+    d5, d6 = dot(ab, cp), dot(ac, cp)
+    vc = d1 * d4 - d3 * d2
+    vb = d5 * d2 - d1 * d6
+    va = d3 * d6 - d5 * d4
+    safe = lambda x: jnp.where(x == 0, 1.0, x)
+    # interior of the face
+    denom = safe(va + vb + vc)
+    v, w = vb / denom, vc / denom
+    point = a + ab * v[:, None] + ac * w[:, None]
+    # edges
+    t_bc = (d4 - d3) / safe((d4 - d3) + (d5 - d6))
+    on_bc = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0)
+    point = jnp.where(on_bc[:, None], b + (c - b) * t_bc[:, None], point)
+    t_ac = d2 / safe(d2 - d6)
+    on_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+    point = jnp.where(on_ac[:, None], a + ac * t_ac[:, None], point)
+    t_ab = d1 / safe(d1 - d3)
+    on_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+    point = jnp.where(on_ab[:, None], a + ab * t_ab[:, None], point)
+    # vertices
+    point = jnp.where(((d6 >= 0) & (d5 <= d6))[:, None], c, point)
+    point = jnp.where(((d3 >= 0) & (d4 <= d3))[:, None], b, point)
+    point = jnp.where(((d1 <= 0) & (d2 <= 0))[:, None], a, point)
+    return point
+
+
+def signed_distance(p: jax.Array, tri: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """Signed distance from `p: float[3]` to the hull `tri: float[T, 3, 3]` (negative inside)
+    and the unit normal `float[3]` pointing from the hull toward `p` (inside: the nearest face's
+    outward normal)."""
+    closest = closest_on_triangles(p, tri)
+    gap = p - closest
+    dist_sq = jnp.sum(gap * gap, axis=-1)
+    k = jnp.argmin(dist_sq)
+    outside_dist = jnp.sqrt(dist_sq[k])
+    normal = jnp.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal = normal / jnp.linalg.norm(normal, axis=-1, keepdims=True)
+    height = jnp.sum(normal * (p - tri[:, 0]), axis=-1)
+    j = jnp.argmax(height)
+    inside = height[j] <= 0
+    out_normal = gap[k] / jnp.where(outside_dist > 0, outside_dist, 1.0)
+    dist = jnp.where(inside, height[j], outside_dist)
+    direction = jnp.where(inside | (outside_dist == 0), normal[j], out_normal)
+    return dist, direction
+
+
+def min_distance(p: jax.Array, tri: jax.Array) -> jax.Array:
+    """Unsigned distance from `p: float[3]` to the triangles `tri: float[T, 3, 3]`."""
+    gap = p - closest_on_triangles(p, tri)
+    return jnp.sqrt(jnp.min(jnp.sum(gap * gap, axis=-1)))
+
+
+__all__ = ["closest_on_triangles", "min_distance", "signed_distance"]

@@ -1,0 +1,120 @@
+"""The arm's physics in MJX: PyBullet's position motor emulated on joint targets.
+
+PyBullet's POSITION_CONTROL (the original's) is a velocity-level motor constraint: every physics
+substep it asks for joint velocity `v* = 50 (q_target - q)` (position gain 0.1 over h = 1/500 s),
+with the impulse of each joint limited to `force_limit * h`, and solves all joints together. Here
+each substep takes MuJoCo's smooth dynamics, finds the joint torques that reach `v*` within
+the per-joint limits (a box-constrained problem in the inverse mass matrix, solved by projected
+Gauss-Seidel as Bullet's sequential-impulse solver does), applies them, then lets MuJoCo solve
+the joint limits and table/floor contacts and integrate (semi-implicit Euler, as Bullet).
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+
+from specrl_jax.envs.zone.mjx_import import mjx
+
+SUBSTEPS = 20
+#: PyBullet's default position gain over its timestep: v* = kp (q_t - q) / h
+MOTOR_RATE = 0.1 / 0.002
+#: projected Gauss-Seidel sweeps over the 7 motor rows per substep
+PGS_SWEEPS = 8
+
+
+@struct.dataclass
+class PhysicsState:
+    """What one arm carries between env steps.
+
+    Attributes:
+        qpos: float32[7] joint angles, rad.
+        qvel: float32[7] joint velocities, rad/s.
+        qacc_warmstart: float32[7] MuJoCo's constraint-solver warm start.
+    """
+
+    qpos: jax.Array
+    qvel: jax.Array
+    qacc_warmstart: jax.Array
+
+
+def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: jax.Array,
+                 target: jax.Array, force_limit: jax.Array, h: float,
+                 sweeps: int = PGS_SWEEPS) -> jax.Array:
+    """Joint torques of PyBullet's velocity-level motor, float32[N] (N m).
+
+    Args:
+        mass: float[N, N] joint-space mass matrix.
+        free_accel: float[N] acceleration without the motor (gravity, Coriolis), rad/s^2.
+        qvel, qpos, target: float[N] joint velocity, angle and target angle.
+        force_limit: float[N] per-joint torque bound, N m.
+        h: the substep, s.
+
+    Returns the torques `tau`, `|tau_i| <= force_limit_i`, such that each unsaturated joint
+    reaches `v* = MOTOR_RATE (target - q)` after the substep (given the saturated ones).
+    """
+    inverse = jnp.linalg.inv(mass)
+    want = (MOTOR_RATE * (target - qpos) - qvel) / h - free_accel  # needed extra acceleration
+    tau = jnp.clip(mass @ want, -force_limit, force_limit)
+    diag = jnp.diagonal(inverse)
+    num = tau.shape[0]
+
+    def update(k, tau):
+        i = k % num
+        residual = want[i] - inverse[i] @ tau
+        return tau.at[i].set(jnp.clip(tau[i] + residual / diag[i], -force_limit[i], force_limit[i]))
+
+    tau = jax.lax.fori_loop(0, sweeps * num, update, tau)
+    return tau
+
+
+class Physics:
+    """Steps the arm model: `init(qpos)` and `step(state, target)` for one arm (vmappable)."""
+
+    def __init__(self, model: mujoco.MjModel, force_limit: np.ndarray, substeps: int = SUBSTEPS):
+        self.mj_model = model
+        self.model = mjx.put_model(model, impl="jax")
+        self.substeps = substeps
+        self.force_limit = np.asarray(force_limit, np.float32)
+        self._template = mjx.make_data(self.model)
+        self._has_constraints = self._template._impl.efc_J.size > 0
+
+    def init(self, qpos: jax.Array) -> PhysicsState:
+        zeros = jnp.zeros(self.mj_model.nv, jnp.float32)
+        return PhysicsState(qpos=jnp.asarray(qpos, jnp.float32), qvel=zeros, qacc_warmstart=zeros)
+
+    def data(self, state: PhysicsState) -> mjx.Data:
+        """MJX data with kinematics (link poses, COM) computed at `state`."""
+        data = self._template.replace(qpos=state.qpos, qvel=state.qvel)
+        return mjx.com_pos(self.model, mjx.kinematics(self.model, data))
+
+    def substep(self, data: mjx.Data, target: jax.Array) -> mjx.Data:
+        """One physics step of h = model timestep toward joint targets `target` ([7], rad)."""
+        m = self.model
+        data = mjx.fwd_velocity(m, mjx.fwd_position(m, data))
+        mass = mjx.full_m(m, data)
+        free_accel = jnp.linalg.solve(mass, data.qfrc_passive - data.qfrc_bias)
+        h = float(self.mj_model.opt.timestep)
+        tau = motor_torque(mass, free_accel, data.qvel, data.qpos, target,
+                           jnp.asarray(self.force_limit), h)
+        data = data.replace(qfrc_applied=tau)
+        data = mjx.fwd_acceleration(m, mjx.fwd_actuation(m, data))
+        if self._has_constraints:
+            data = mjx.solve(m, data)
+        else:
+            data = data.replace(qacc=data.qacc_smooth)
+        return mjx.euler(m, data)
+
+    def step(self, state: PhysicsState, target: jax.Array) -> PhysicsState:
+        """`substeps` physics steps toward `target` (float[7], rad), held through the step."""
+        data = self._template.replace(
+            qpos=state.qpos, qvel=state.qvel, qacc_warmstart=state.qacc_warmstart
+        )
+        data = jax.lax.fori_loop(0, self.substeps, lambda _, d: self.substep(d, target), data)
+        return PhysicsState(qpos=data.qpos, qvel=data.qvel, qacc_warmstart=data.qacc_warmstart)
+
+
+__all__ = ["MOTOR_RATE", "SUBSTEPS", "Physics", "PhysicsState", "motor_torque"]
