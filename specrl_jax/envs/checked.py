@@ -32,8 +32,16 @@ class Checked:
         if self._batched:
             self._reset, self._step = jax.jit(env.reset), jax.jit(env.step)
         else:
+            space = env.action_space
+
+            def step(key: jax.Array, state: Any, action: jax.Array, params: Any) -> StepOut:
+                out = env.step(key, state, action, params)
+                message = f"invalid action {{a}}; accepted: elements of {space}"
+                checkify.check(~out[5]["invalid_action"], message, a=action)
+                return out
+
             self._reset = jax.jit(checkify.checkify(env.reset, errors=checkify.user_checks))
-            self._step = jax.jit(checkify.checkify(env.step, errors=checkify.user_checks))
+            self._step = jax.jit(checkify.checkify(step, errors=checkify.user_checks))
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self.env, name)

@@ -76,8 +76,8 @@ class Discrete:
                 )
 
     def is_valid(self, x: jax.Array) -> jax.Array:
-        """bool[]: every entry of `x` in 0..n-1 (traceable)."""
-        return jnp.all((x >= 0) & (x < self.n))
+        """bool[]: every entry of `x` in 0..n-1 (traceable; one unsigned compare per entry)."""
+        return jnp.all(x.astype(jnp.uint32) < self.n)
 
     def sanitize(self, x: jax.Array, valid: jax.Array) -> jax.Array:
         """`x` where `valid`, else action 0 (traceable)."""
