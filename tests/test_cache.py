@@ -57,7 +57,8 @@ def test_envs_of_one_config_share_compiled_eager_steps():
     config = LetterConfig(grid_size=5, letters=("a", "b"), counts=1)
     first, second = LetterWorld(config), LetterWorld(config)
     assert base._compiled(first) is base._compiled(second)
-    assert base._compiled(first) is not base._compiled(LetterWorld(LetterConfig(grid_size=5, letters=("a", "b"), counts=2)))
+    other = LetterWorld(LetterConfig(grid_size=5, letters=("a", "b"), counts=2))
+    assert base._compiled(first) is not base._compiled(other)
     _, state = first.reset(jax.random.key(0))
     first.step(jax.random.key(1), state, 1)
     out = second.step(jax.random.key(2), state, jnp.int32(2))  # scalar or array: one compile

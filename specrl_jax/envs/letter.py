@@ -50,7 +50,10 @@ class LetterConfig:
                 f"got {n}; give an odd view_size < {n} for a partial view"
             )
         view = n if self.view_size is None else self.view_size
-        if not isinstance(view, int) or isinstance(view, bool) or view < 1 or view % 2 == 0 or view > n:
+        if (
+            not isinstance(view, int) or isinstance(view, bool)
+            or view < 1 or view % 2 == 0 or view > n
+        ):
             raise ValueError(
                 f"view_size must be an odd int in 1..grid_size={n} (the agent sits at the centre), "
                 f"got {self.view_size!r}"

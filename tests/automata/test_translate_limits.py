@@ -1,4 +1,4 @@
-"""Formulas that used to take long: deep nesting translates quickly, oversized automata fail fast."""
+"""Formulas that used to take long: deep nesting translates fast, oversized automata fail fast."""
 
 import time
 

@@ -1,4 +1,4 @@
-"""Bad input at the env level: rare-map configs, bounded samplers, invalid actions, bad overrides."""
+"""Bad input at env level: rare-map configs, bounded samplers, invalid actions, bad overrides."""
 
 import jax
 import jax.numpy as jnp
@@ -94,7 +94,8 @@ def test_zone_non_finite_action_ends_the_episode_and_keeps_the_state_finite():
         obs, after, _, terminated, _, info = step(jax.random.key(1), state, action, params)
         assert bool(terminated) and bool(info["invalid_action"])
         leaves = jax.tree.leaves((obs, after))
-        assert all(bool(jnp.all(jnp.isfinite(x))) for x in leaves if jnp.issubdtype(x.dtype, jnp.floating))
+        floats = [x for x in leaves if jnp.issubdtype(x.dtype, jnp.floating)]
+        assert floats and all(bool(jnp.all(jnp.isfinite(x))) for x in floats)
         # the world can go on from there (a wrapper would reset it; stepping it stays finite)
         obs, _, _, terminated, _, info = step(jax.random.key(2), after, jnp.zeros(2), params)
         assert bool(jnp.all(jnp.isfinite(obs["ego"]))) and not bool(info["invalid_action"])
@@ -123,7 +124,8 @@ def test_unknown_zone_override_is_reported_before_the_world_is_built(monkeypatch
         specrl_jax.make("PointLTL0-v0", max_step=10)
     message = str(err.value)
     assert "unknown Zone option(s) ['max_step']" in message
-    assert "ZoneConfig fields" in message and "'zone_radius'" in message and "'max_steps'" in message
+    assert "ZoneConfig fields" in message and "'zone_radius'" in message
+    assert "'max_steps'" in message
 
 
 @pytest.mark.parametrize(
