@@ -35,7 +35,7 @@ class TaskState:
     """The state of one task episode."""
 
     env_state: Any  # the world's state
-    obs: Obs  # last world observation, returned again by an epsilon step
+    obs: Obs  # last world observation, returned by an epsilon step (`()` where none can happen)
     propositions: jax.Array  # bool[P], last label (all False at reset)
     task: Any  # the source's task (AutomatonTask, SequenceTask)
     time: jax.Array  # int32[], task steps so far (world steps + epsilon steps)
@@ -110,7 +110,7 @@ class TaskEnv:
         zero = jnp.zeros((), jnp.int32)
         state = TaskState(
             env_state=env_state,
-            obs=obs,
+            obs=obs if self.source.may_take_epsilon else (),
             propositions=jnp.zeros((self.env.num_propositions,), bool),
             task=self.source.reset(key_task, source_params, spec_index),
             time=zero,
@@ -127,14 +127,18 @@ class TaskEnv:
         params = self.env.default_params if params is None else params
         key_env, key_task = jax.random.split(key)
         slot = automata.epsilon_slot(take_epsilon)
-        is_epsilon = self.source.takes_epsilon(state.task, slot)
-        obs_env, env_state, _, env_terminated, _, env_info = self.env.step(
+        obs, env_state, _, env_terminated, _, env_info = self.env.step(
             key_env, state.env_state, action, params
         )
-        obs = select_tree(is_epsilon, state.obs, obs_env)
-        env_state = select_tree(is_epsilon, state.env_state, env_state)
-        propositions = jnp.where(is_epsilon, state.propositions, env_info["propositions"])
-        env_terminated = ~is_epsilon & env_terminated
+        propositions = env_info["propositions"]
+        if self.source.may_take_epsilon:  # static: an epsilon step keeps the world as it was
+            is_epsilon = self.source.takes_epsilon(state.task, slot)
+            obs = select_tree(is_epsilon, state.obs, obs)
+            env_state = select_tree(is_epsilon, state.env_state, env_state)
+            propositions = jnp.where(is_epsilon, state.propositions, propositions)
+            env_terminated = ~is_epsilon & env_terminated
+        else:
+            is_epsilon = jnp.zeros((), bool)
         symbol = env_info.get("symbol") if self.source.symbol_is_row else None
 
         task, events = self.source.step(key_task, state.task, propositions, symbol, is_epsilon,
@@ -144,7 +148,7 @@ class TaskEnv:
         truncated = (time >= params.max_steps) & ~terminated
         new_state = state.replace(
             env_state=env_state,
-            obs=obs,
+            obs=obs if self.source.may_take_epsilon else (),
             propositions=propositions,
             task=task,
             time=time,

@@ -27,6 +27,7 @@ from flax import struct
 
 from specrl_jax import automata
 from specrl_jax.specs import CurriculumSampler, ReachAvoidSequence
+from specrl_jax.specs.curricula import ReachStay
 
 
 class Events(NamedTuple):
@@ -110,6 +111,8 @@ class AutomatonSource:
         # the world's symbol is a row of its own alphabet: usable only where the specs' rows are
         # the same assignments in the same order (else the step looks the label up)
         self.symbol_is_row = bool(np.array_equal(spec_alphabet, env_alphabet))
+        #: static: some spec has an epsilon edge (else the loop never keeps a world step back)
+        self.may_take_epsilon = bool((np.asarray(specs.epsilon) >= 0).any())
 
     def init_params(self) -> None:
         return None
@@ -191,6 +194,9 @@ class SequenceSource:
         self.alphabet = alphabet
         self.continual = continual
         self.symbol_is_row = True
+        self.may_take_epsilon = any(
+            isinstance(sampler, ReachStay)
+            for stage in sampler.curriculum.stages for sampler in stage.samplers)
 
     def init_params(self) -> Any:
         return self.sampler.init()
