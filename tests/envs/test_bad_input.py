@@ -123,7 +123,7 @@ def test_unknown_zone_override_is_reported_before_the_world_is_built(monkeypatch
     with pytest.raises(ValueError) as err:
         specrl_jax.make("PointLTL0-v0", max_step=10)
     message = str(err.value)
-    assert "unknown Zone option(s) ['max_step']" in message
+    assert "unknown ZoneParams fields ['max_step'] (nor ZoneConfig fields)" in message
     assert "ZoneConfig fields" in message and "'zone_radius'" in message
     assert "'max_steps'" in message
 

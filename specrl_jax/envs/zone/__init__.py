@@ -25,9 +25,11 @@ def _check_params(params: dict[str, Any], config_fields: tuple[str, ...] = ()) -
     """Reject unknown or bad ZoneParams overrides before any world is built."""
     unknown = sorted(set(params) - {"max_steps"})
     if unknown:
+        where = " (nor ZoneConfig fields)" if config_fields else ""
         accepted = f"ZoneConfig fields {sorted(config_fields)} and " if config_fields else ""
         raise ValueError(
-            f"unknown Zone option(s) {unknown}; accepted: {accepted}ZoneParams fields ['max_steps']"
+            f"unknown ZoneParams fields {unknown}{where}; accepted: {accepted}ZoneParams fields "
+            "['max_steps']"
         )
     max_steps = params.get("max_steps", 1)
     if not isinstance(max_steps, int) or isinstance(max_steps, bool) or max_steps < 1:
