@@ -21,6 +21,7 @@ import numpy as np
 
 from specrl_jax import automata
 from specrl_jax.envs.wrappers import select_tree
+from specrl_jax.eval import original_ldba
 from specrl_jax.eval.metrics import EpisodeTable, per_seed_metrics, summarize
 from specrl_jax.tasks.policy import StatefulPolicy, as_stateful, split_action
 from specrl_jax.tasks import TaskEnv, TaskState
@@ -102,27 +103,38 @@ def prepare_specs(env: Any, specs: Any) -> tuple[Any, tuple[str, ...]]:
 
 
 def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int,
-                policy_params: Any, key: jax.Array, spec_index: jax.Array, record: bool = False):
+                policy_params: Any, key: jax.Array, spec_index: jax.Array, record: bool = False,
+                original: Any = None):
     """One episode of at most `horizon` steps (trace-time function; `vmap` it over lanes).
 
+    `original` (optional): the original benchmark's automata stacked like the task's specs
+    (`eval.original_ldba`), tracked beside ours to count accepting visits as the original did.
+
     Returns:
-        `(final TaskState, aborted bool[], trace)`: `aborted` when the policy gave the episode up
-        (see `StatefulPolicy.aborted`); `trace` is None, or when `record` a pair of the per-step
-        TaskStates `[T]` (after each step) and `alive bool[T]` (the step was part of the episode).
+        `(final TaskState, aborted bool[], trace, original visits int32[] or None)`: `aborted`
+        when the policy gave the episode up (see `StatefulPolicy.aborted`); `trace` is None, or
+        when `record` a pair of the per-step TaskStates `[T]` (after each step) and
+        `alive bool[T]` (the step was part of the episode); the last entry is -1 where the spec
+        has no original automaton.
     """
     key_reset, key_init, key_loop = jax.random.split(key, 3)
     obs, state = task.reset(key_reset, params, spec_index)
     carry = policy.init(policy_params, obs, state, key_init)
+    ldba = None if original is None else jax.tree.map(lambda x: x[spec_index], original)
+    tracker = None if ldba is None else original_ldba.init(ldba)
 
-    def body(loop, t):
-        obs, state, carry, done, aborted = loop
+    def body(loop, _):
+        obs, state, carry, done, aborted, tracker, t = loop
         key_policy, key_step = jax.random.split(jax.random.fold_in(key_loop, t))
         output, carry_next = policy.apply(policy_params, obs, state, carry, key_policy)
         gives_up = ~done & (False if policy.aborted is None else policy.aborted(carry_next))
         action, take_epsilon = split_action(output)
-        obs_next, state_next, _, terminated, truncated, _ = task.step_task(
+        obs_next, state_next, _, terminated, truncated, info = task.step_task(
             key_step, state, action, params, take_epsilon
         )
+        if ldba is not None:
+            tracked, _ = original_ldba.step(ldba, tracker, info["propositions"], info["epsilon"])
+            tracker = select_tree(done | gives_up, tracker, tracked)
         # An ended episode stays frozen until the scan (the horizon) is over; a given-up one
         # freezes before its step. The spec index is set again after the select so that it stays
         # unbatched over the episodes that share it (and so does every spec read through it).
@@ -132,29 +144,35 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
         state = state.replace(task=state.task.replace(spec_index=state_next.spec_index))
         trace = (state, ~done & ~gives_up) if record else None
         ended = done | gives_up | terminated | truncated
-        return (obs, state, carry, ended, aborted | gives_up), trace
+        return (obs, state, carry, ended, aborted | gives_up, tracker, t + 1), trace
 
-    init = (obs, state, carry, jnp.zeros((), bool), jnp.zeros((), bool))
-    (_, state, _, _, aborted), trace = jax.lax.scan(body, init, jnp.arange(horizon))
-    return state, aborted, trace
+    init = (obs, state, carry, jnp.zeros((), bool), jnp.zeros((), bool), tracker, jnp.int32(0))
+    (_, state, _, _, aborted, tracker, _), trace = jax.lax.scan(body, init, None, length=horizon)
+    visits = None if ldba is None else jnp.where(ldba.present, tracker.visits, -1)
+    return state, aborted, trace, visits
 
 
 def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, params: Any,
                    episodes_per_seed: int, horizon: int | None = None,
-                   sequential_seeds: bool = False) -> Callable[[Any, jax.Array], EpisodeTable]:
+                   sequential_seeds: bool = False, original: Any = None
+                   ) -> Callable[[Any, jax.Array], EpisodeTable]:
     """A jitted `fn(policy_params, seeds uint32[num_seeds]) -> EpisodeTable` (device arrays,
     fields `[num_seeds, K, episodes_per_seed]`); compile once, call many times.
 
     `sequential_seeds` runs the seeds one after the other (`lax.map`) instead of side by side,
-    dividing peak memory by `num_seeds`, for runs too large for one device."""
+    dividing peak memory by `num_seeds`, for runs too large for one device. `original`: the
+    original's automata of the K specs (`original_ldba.stack_ldbas`), counted beside ours
+    (`EpisodeTable.num_accepting_original`). Memory holds each episode's running state only,
+    whatever the horizon."""
     policy = as_stateful(policy)
     horizon = int(params.max_steps) if horizon is None else int(horizon)
     num_specs = task.num_specs
 
     def episode(policy_params, seed, spec_index, episode_index):
         key = jax.random.fold_in(jax.random.key(seed), episode_index)
-        state, aborted, _ = run_episode(policy, task, params, horizon, policy_params, key, spec_index)
-        return _outcome(state, aborted)
+        state, aborted, _, visits = run_episode(policy, task, params, horizon, policy_params, key,
+                                                spec_index, original=original)
+        return _outcome(state, aborted, visits)
 
     per_episode = jax.vmap(episode, in_axes=(None, None, None, 0))
     per_spec = jax.vmap(per_episode, in_axes=(None, None, 0, None))
@@ -169,8 +187,9 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
     return evaluator
 
 
-def _outcome(state: TaskState, aborted: jax.Array) -> EpisodeTable:
-    return EpisodeTable(state.success, state.violation, state.time, state.num_accepting, aborted)
+def _outcome(state: TaskState, aborted: jax.Array, visits: jax.Array | None) -> EpisodeTable:
+    return EpisodeTable(state.success, state.violation, state.time, state.num_accepting, aborted,
+                        visits)
 
 
 def evaluate(policy: Callable[..., Any] | StatefulPolicy, env_id_or_env: Any, specs: Any,
@@ -210,7 +229,7 @@ def evaluate(policy: Callable[..., Any] | StatefulPolicy, env_id_or_env: Any, sp
         seeds=seeds,
         episodes_per_seed=episodes_per_seed,
         horizon=horizon,
-        table=EpisodeTable(*(np.asarray(x) for x in table)),
+        table=EpisodeTable(*(None if x is None else np.asarray(x) for x in table)),
     )
 
 
@@ -225,7 +244,7 @@ def record_episodes(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, 
     @jax.jit
     def run(keys, spec_index):
         def one(key, index):
-            _, _, (states, alive) = run_episode(
+            _, _, (states, alive), _ = run_episode(
                 policy, task, params, horizon, policy_params, key, index, True
             )
             _, first = task.reset(jax.random.split(key, 3)[0], params, index)

@@ -9,7 +9,9 @@ whether the policy gave it up (aborted). From it, per seed and spec:
   `eta_a`: fraction the policy gave up (aborted; part of `eta_o`; the reference's unreachable rate);
 - `mu`: mean steps to success, over successful episodes only (NaN if there is none);
 - `mu_acc`: mean accepting visits over non-violating, non-aborted episodes only (NaN if there is
-  none), the infinite-horizon metric (GenZ-LTL's protocol, see the reference notes).
+  none), the infinite-horizon metric (GenZ-LTL's protocol, see the reference notes);
+- `mu_acc_original` (where tracked): the same mean of the visits counted on the original
+  benchmark's automaton (`eval.original_ldba`), beside ours.
 
 Suites aggregate per seed first (the mean over the suite's specs, NaN-skipping for `mu` and
 `mu_acc`), then report the mean and the standard deviation (ddof 0) over seeds. A NaN marks "no
@@ -36,6 +38,9 @@ class EpisodeTable(NamedTuple):
     steps: np.ndarray  # int, episode length in steps (epsilon steps included)
     num_accepting: np.ndarray  # int, accepting transitions taken in the episode
     aborted: np.ndarray | None = None  # bool, the policy gave the episode up (None: never)
+    #: int, accepting visits on the original's automaton (eval.original_ldba), -1 where the spec
+    #: has none; None when not tracked
+    num_accepting_original: np.ndarray | None = None
 
 
 def _nanmean(x: np.ndarray, axis: int) -> np.ndarray:
@@ -75,6 +80,10 @@ def per_seed_metrics(table: EpisodeTable) -> dict[str, np.ndarray]:
         raise ValueError("an aborted episode cannot succeed or violate; the episode table is corrupt")
     eta_s = success.mean(axis=-1)
     eta_v = violation.mean(axis=-1)
+    extra = {}
+    if table.num_accepting_original is not None:
+        original = np.asarray(table.num_accepting_original)
+        extra["mu_acc_original"] = _masked_mean(original, ~violation & ~aborted & (original >= 0))
     return {
         "eta_s": eta_s,
         "eta_v": eta_v,
@@ -82,6 +91,7 @@ def per_seed_metrics(table: EpisodeTable) -> dict[str, np.ndarray]:
         "eta_a": aborted.mean(axis=-1),
         "mu": _masked_mean(np.asarray(table.steps), success),
         "mu_acc": _masked_mean(np.asarray(table.num_accepting), ~violation & ~aborted),
+        **extra,
     }
 
 

@@ -99,7 +99,7 @@ def to_dict(results: Sequence[SuiteResult], config: dict[str, Any]) -> dict[str,
             "episodes_per_seed": r.episodes_per_seed,
             "horizon": r.horizon,
             "summary": item.summary(),
-            "per_seed": {m: per_seed[m].tolist() for m in METRICS},
+            "per_seed": {m: v.tolist() for m, v in per_seed.items()},
             "episodes": {name: np.asarray(value).tolist()
                          for name, value in r.table._asdict().items()},
         })
@@ -118,6 +118,8 @@ def markdown_tables(results: Sequence[SuiteResult], digits: int = 2) -> str:
     parts = []
     for finite, columns in ((True, FINITE_COLUMNS), (False, INFINITE_COLUMNS)):
         chosen = [r for r in results if r.is_finite == finite]
+        if any(r.result.table.num_accepting_original is not None for r in chosen) and not finite:
+            columns = columns[:1] + ("mu_acc_original",) + columns[1:]
         if chosen:
             parts.append(_table(chosen, columns, digits))
     return "\n\n".join(parts) + "\n"
@@ -134,8 +136,8 @@ def _table(results: Sequence[SuiteResult], columns: Sequence[str], digits: int) 
         for method in methods:
             stats = cells.get((env_id, suite, method))
             for c in columns:
-                row.append("-" if stats is None else
-                           format_mean_std(stats[f"{c}_mean"], stats[f"{c}_std"], digits))
+                row.append("-" if stats is None else format_mean_std(
+                    stats.get(f"{c}_mean", math.nan), stats.get(f"{c}_std", math.nan), digits))
         lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines)
 

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from specrl_jax import automata, specs
+from specrl_jax.eval import original_ldba
 from specrl_jax.eval.evaluate import EvalResult, make_evaluator
 from specrl_jax.eval.metrics import EpisodeTable
 from specrl_jax.eval.report import SuiteResult
@@ -38,6 +39,18 @@ def check_suites(names: Sequence[str], env: Any) -> None:
         if not set(info.propositions) <= set(env.propositions):
             raise ValueError(f"suite {name!r} is over propositions {info.propositions}, but the "
                              f"env has {env.propositions}")
+
+
+def originals(formulas: Sequence[str], env: Any) -> Any:
+    """The original benchmark's automata of `formulas` (stacked, `eval.original_ldba`), or None
+    when none of them has one (only the paper's infinite-horizon formulas do)."""
+    texts = [original_ldba.original_hoa(f) for f in formulas]
+    if all(t is None for t in texts):
+        return None
+    alphabet = np.asarray(env.alphabet, bool)
+    return original_ldba.stack_ldbas(
+        [None if t is None else original_ldba.build_ldba(t, env.propositions, alphabet)
+         for t in texts], alphabet)
 
 
 def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Sequence[str],
@@ -72,7 +85,7 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
             [automata.compile_spec(f, env.propositions, alphabet=env.alphabet) for f in formulas])
         run_params = params.replace(max_steps=steps)
         evaluator = make_evaluator(policy, TaskEnv(env, compiled), run_params,
-                                   episodes_per_seed=episodes)
+                                   episodes_per_seed=episodes, original=originals(formulas, env))
         tables = []
         for i, seed in enumerate(seeds):
             start = time.perf_counter()
@@ -81,7 +94,8 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
             tables.append(jax.device_get(evaluator(seed_params, jnp.asarray([seed], jnp.uint32))))
             log(f"evaluated seed {seed}: {len(formulas)} specs x {episodes} episodes x {steps} "
                 f"steps in {time.perf_counter() - start:.1f}s")
-        table = EpisodeTable(*(np.concatenate(parts, axis=0) for parts in zip(*tables)))
+        table = EpisodeTable(*(None if parts[0] is None else np.concatenate(parts, axis=0)
+                               for parts in zip(*tables)))
         result = EvalResult(
             env_id=env_id, spec_names=tuple(formulas), is_finite=np.asarray(compiled.is_finite),
             seeds=tuple(int(s) for s in seeds), episodes_per_seed=episodes, horizon=steps,

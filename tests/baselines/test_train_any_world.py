@@ -63,7 +63,7 @@ def test_training_and_evaluation_agree_on_an_episode():
     train_env = TaskTrainEnv(task, params, signals=lambda info: (0.0, 0.0, jnp.zeros((), bool)))
     for index in range(3):
         key = jax.random.key(index)
-        final, _, _ = jax.jit(lambda k, i: run_episode(policy, task, params, 75, None, k, i))(key, index)
+        final, _, _, _ = jax.jit(lambda k, i: run_episode(policy, task, params, 75, None, k, i))(key, index)
         _, state = task.reset(jax.random.split(key, 3)[0], params, index)
         step = jax.jit(train_env.step)
         for t in range(75):
