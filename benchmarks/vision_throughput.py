@@ -60,12 +60,14 @@ def _memory(compiled) -> int | None:
         return None
 
 
-def _env(args: argparse.Namespace, size: int):
-    return specrl_jax.make(args.env, image_size=size)
+def _env(args: argparse.Namespace, size: int, backend: str = "auto"):
+    env, params = specrl_jax.make(args.env, image_size=size)
+    env.camera.backend = backend
+    return env, params
 
 
-def render_case(args: argparse.Namespace, size: int, num: int) -> dict[str, Any]:
-    env, params = _env(args, size)
+def render_case(args: argparse.Namespace, size: int, num: int, backend: str = "auto") -> dict[str, Any]:
+    env, params = _env(args, size, backend)
     camera = env.camera
     _, state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(
         jax.random.split(jax.random.key(0), num), params
@@ -92,12 +94,16 @@ def render_case(args: argparse.Namespace, size: int, num: int) -> dict[str, Any]
         out = jax.block_until_ready(compiled(scenes, out))
         times.append(time.perf_counter() - start)
     frames = num * args.steps
-    return {"case": "render", "size": size, "batch": num, "steps": args.steps,
+    return {"case": f"render ({_backend(env)})", "size": size, "batch": num, "steps": args.steps,
             "per_s": frames / min(times), "compile_s": compile_s, "bytes": _memory(compiled)}
 
 
-def _batched(args: argparse.Namespace, size: int, num: int, mode: str):
-    env, params = _env(args, size)
+def _backend(env) -> str:
+    return "pallas" if env.camera._pallas_block() else "xla"
+
+
+def _batched(args: argparse.Namespace, size: int, num: int, mode: str, backend: str = "auto"):
+    env, params = _env(args, size, backend)
     if mode == "bank":
         params = env.with_map_bank(jax.random.key(1), params, args.bank_size)
     batched = batch(env, num)
@@ -105,8 +111,9 @@ def _batched(args: argparse.Namespace, size: int, num: int, mode: str):
     return batched, params, obs, state
 
 
-def step_case(args: argparse.Namespace, size: int, num: int, mode: str) -> dict[str, Any]:
-    batched, params, obs, state = _batched(args, size, num, mode)
+def step_case(args: argparse.Namespace, size: int, num: int, mode: str,
+              backend: str = "auto") -> dict[str, Any]:
+    batched, params, obs, state = _batched(args, size, num, mode, backend)
 
     def run(key, state, obs):
         def body(carry, _):
@@ -136,13 +143,14 @@ def step_case(args: argparse.Namespace, size: int, num: int, mode: str) -> dict[
         start = time.perf_counter()
         state, obs, _ = jax.block_until_ready(compiled(jax.random.fold_in(key, repeat), state, obs))
         times.append(time.perf_counter() - start)
-    return {"case": f"step ({mode})", "size": size, "batch": num, "steps": args.steps,
+    return {"case": f"step ({mode}, {_backend(batched.env.env)})", "size": size, "batch": num, "steps": args.steps,
             "per_s": num * args.steps / min(times), "compile_s": compile_s,
             "bytes": _memory(compiled)}
 
 
-def rollout_case(args: argparse.Namespace, size: int, num: int) -> dict[str, Any]:
-    batched, params, obs, state = _batched(args, size, num, "exact")
+def rollout_case(args: argparse.Namespace, size: int, num: int,
+                 backend: str = "auto") -> dict[str, Any]:
+    batched, params, obs, state = _batched(args, size, num, "exact", backend)
 
     def run(key, state):
         def body(carry, _):
@@ -167,7 +175,7 @@ def rollout_case(args: argparse.Namespace, size: int, num: int) -> dict[str, Any
     limit = (jax.devices()[0].memory_stats() or {}).get("bytes_limit")
     per_world = held / num if held else None
     largest = int(0.95 * limit / per_world) if (limit and per_world) else None
-    return {"case": f"rollout {ROLLOUT_STEPS}", "size": size, "batch": num, "steps": ROLLOUT_STEPS,
+    return {"case": f"rollout {ROLLOUT_STEPS} ({_backend(batched.env.env)})", "size": size, "batch": num, "steps": ROLLOUT_STEPS,
             "per_s": num * ROLLOUT_STEPS / run_s, "compile_s": compile_s, "bytes": held,
             "largest_batch": largest, "device_bytes": limit}
 
@@ -183,7 +191,7 @@ def _versions() -> str:
 def _row(r: dict[str, Any]) -> str:
     per_world = f"{r['bytes'] / r['batch'] / 2**20:.2f}" if r.get("bytes") else "-"
     largest = f"{r['largest_batch']:,}" if r.get("largest_batch") else "-"
-    unit = "frames/s" if r["case"] == "render" else "env-steps/s"
+    unit = "frames/s" if r["case"].startswith("render") else "env-steps/s"
     return (f"| {r['case']} | {r['size']}x{r['size']} | {r['batch']:,} | {r['steps']} | "
             f"{r['per_s']:,.0f} {unit} | {r['compile_s']:.1f} | {per_world} | {largest} |")
 
@@ -192,13 +200,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="PointLTL0Vision-v0")
     parser.add_argument("--render", nargs="*", default=["64:65536", "64:262144", "256:8192", "256:16384"],
-                        help="size:batch pairs for the render-alone case")
+                        help="size:batch[:backend] for the render-alone case (backend auto, xla, pallas)")
     parser.add_argument("--step", nargs="*", default=["64:65536:exact", "64:131072:exact",
                                                      "256:8192:exact", "256:16384:exact",
                                                      "64:131072:bank", "256:16384:bank"],
-                        help="size:batch:reset triples for the env-step case")
+                        help="size:batch:reset[:backend] for the env-step case")
     parser.add_argument("--rollout", nargs="*", default=["64:4096", "256:512"],
-                        help="size:batch pairs for the 128-step rollout memory case")
+                        help="size:batch[:backend] for the 128-step rollout memory case")
+    parser.add_argument("--order", nargs=3, default=["render", "step", "rollout"],
+                        help="order of the case kinds")
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--bank-size", type=int, default=65536)
@@ -206,9 +216,15 @@ def main() -> None:
     parser.add_argument("--out", default=None, help="markdown file to append the table to")
     args = parser.parse_args()
 
-    cases = ([(render_case, (int(s), int(b))) for s, b in (x.split(":") for x in args.render)]
-             + [(step_case, (int(s), int(b), m)) for s, b, m in (x.split(":") for x in args.step)]
-             + [(rollout_case, (int(s), int(b))) for s, b in (x.split(":") for x in args.rollout)])
+    def parse(text: str, ints: int) -> tuple:
+        parts = text.split(":")
+        return tuple(int(p) for p in parts[:ints]) + tuple(parts[ints:])
+
+    cases = ([(render_case, parse(x, 2)) for x in args.render]
+             + [(step_case, parse(x, 2)) for x in args.step]
+             + [(rollout_case, parse(x, 2)) for x in args.rollout])
+    order = {name: i for i, name in enumerate(args.order)}
+    cases.sort(key=lambda case: order[case[0].__name__.split("_")[0]])
     device = jax.devices()[0]
     header = [
         f"Device: {device.device_kind} ({device.platform}). Versions: {_versions()}.",
@@ -227,10 +243,10 @@ def main() -> None:
                 result = fn(args, *case_args)
                 line = _row(result)
                 print(json.dumps(result), file=sys.stderr, flush=True)
-            except jax.errors.JaxRuntimeError as err:
-                if "RESOURCE_EXHAUSTED" not in str(err):
-                    raise
-                line = f"out of memory: {fn.__name__}{case_args}"
+            except Exception as err:  # noqa: BLE001  (record it and go on with the next case)
+                first = str(err).strip().splitlines()[0][:300] if str(err).strip() else ""
+                kind = "out of memory" if "RESOURCE_EXHAUSTED" in str(err) else type(err).__name__
+                line = f"{kind}: {fn.__name__}{case_args}: {first}"
         print(line, flush=True)
         lines.append(line)
         if args.out:

@@ -200,6 +200,23 @@ def test_geoms_left_out_never_show(robot):
         np.testing.assert_array_equal(render(full, qpos), render(drawn, qpos))
 
 
+@pytest.mark.parametrize("robot", ["Point", "Ant"])
+def test_fused_kernel_renders_the_same_frames(robot):
+    # the Pallas kernel (the GPU default) run by Pallas' interpreter, against the plain XLA path
+    qpos = jnp.asarray(FIDELITY.QPOS[robot], jnp.float32)
+    zones = jnp.asarray(FIDELITY.ZONE_XY, jnp.float32)
+    qpos, zones = jnp.stack([qpos, qpos.at[1].add(-0.4)]), jnp.stack([zones, zones[::-1]])
+    frames = {}
+    for backend in ("xla", "pallas_interpret"):
+        camera = Camera(load_model(robot), robot, np.asarray([ZONE_RGB[c] for c in COLORS]),
+                        np.full(8, 0.4), zone_height(False), (SIZE, SIZE), backend=backend)
+        render = jax.jit(jax.vmap(lambda q, z, camera=camera: camera.render(camera.scene(q, z))))
+        frames[backend] = np.asarray(render(qpos, zones))
+    assert frames["xla"].dtype == np.uint8 and frames["xla"].shape == (2, SIZE, SIZE, 3)
+    assert not np.array_equal(frames["xla"][0], frames["xla"][1])
+    np.testing.assert_array_equal(frames["pallas_interpret"], frames["xla"])
+
+
 # ---- the env: moving zones, determinism, shapes ---------------------------------------------
 
 

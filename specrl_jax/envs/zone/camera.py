@@ -79,6 +79,11 @@ ALL_ROBOT_GEOMS = {
 }
 
 
+#: Accepted `Camera(backend=...)` values.
+BACKENDS = ("auto", "xla", "pallas", "pallas_interpret")
+#: Pixels per Pallas program (the largest power of two up to this that divides H * W).
+PALLAS_BLOCK = 512
+
 _PRIMITIVES = (mujoco.mjtGeom.mjGEOM_SPHERE, mujoco.mjtGeom.mjGEOM_CAPSULE,
                mujoco.mjtGeom.mjGEOM_CYLINDER, mujoco.mjtGeom.mjGEOM_BOX)
 
@@ -162,6 +167,9 @@ class Camera:
             zones).
         size: `(H, W)` pixels.
         geoms: the robot geoms to draw as `(name, rgb)` (default `ROBOT_GEOMS[robot]`).
+        backend: "auto" (a Pallas kernel on a GPU, plain XLA elsewhere), "xla", "pallas", or
+            "pallas_interpret" (the kernel run by Pallas' interpreter, for tests on a CPU). The
+            attribute may be changed before tracing.
     """
 
     SKY, FLOOR, WALL, GEOM, ZONE = 0, 1, 2, 10, 100
@@ -175,7 +183,11 @@ class Camera:
         zone_height: float,
         size: tuple[int, int],
         geoms: tuple[tuple[str, tuple[float, float, float]], ...] | None = None,
+        backend: str = "auto",
     ):
+        if backend not in BACKENDS:
+            raise ValueError(f"unknown camera backend {backend!r}; accepted: {BACKENDS}")
+        self.backend = backend
         geoms = ROBOT_GEOMS[robot] if geoms is None else geoms
         self.mount = MOUNTS[robot]
         self.size = (int(size[0]), int(size[1]))
@@ -214,12 +226,15 @@ class Camera:
         )
 
     # ---- rays ----------------------------------------------------------------------------
-    def _rays(self, cam_rot: jax.Array) -> tuple:
-        """Unit ray directions of every pixel in the world frame: three float32[H, W]."""
+    def _pixels(self) -> tuple[jax.Array, jax.Array]:
+        """Row and column index of every pixel, float32[H, W] each."""
+        return (jax.lax.broadcasted_iota(jnp.float32, self.size, 0),
+                jax.lax.broadcasted_iota(jnp.float32, self.size, 1))
+
+    def _rays(self, cam_rot, row: jax.Array, col: jax.Array) -> tuple:
+        """Unit ray directions of the pixels at `row`, `col` in the world frame (3 arrays)."""
         height, width = self.size
         tan = np.tan(np.deg2rad(self.mount.fovy) / 2)
-        row = jax.lax.broadcasted_iota(jnp.float32, (height, width), 0)
-        col = jax.lax.broadcasted_iota(jnp.float32, (height, width), 1)
         u = ((col + 0.5) * (2.0 / width) - 1.0) * (tan * width / height)
         v = (1.0 - (row + 0.5) * (2.0 / height)) * tan
         inv = jax.lax.rsqrt(u * u + v * v + 1.0)
@@ -253,7 +268,7 @@ class Camera:
             enter = jnp.minimum(t1, t2)
             better = enter > near
             axis = jnp.where(better, k, axis)
-            sign = jnp.where(better, -jnp.sign(d), sign)
+            sign = jnp.where(better, jnp.where(d > 0, -1.0, 1.0), sign)
             near = jnp.maximum(near, enter)
             far = jnp.minimum(far, jnp.maximum(t1, t2))
         t = jnp.where((near <= far) & (near > 0), near, jnp.inf)
@@ -302,16 +317,16 @@ class Camera:
         t_side = (-b - jnp.sqrt(jnp.maximum(disc, 0.0))) / jnp.maximum(a, 1e-12)
         side = (disc >= 0) & (a > 1e-12) & (jnp.abs(o[2] + t_side * d[2]) <= half_height) & (t_side > 0)
         dz = jnp.where(jnp.abs(d[2]) < 1e-12, 1e-12, d[2])
-        t_cap = (-jnp.sign(dz) * half_height - o[2]) / dz  # the cap facing the ray
+        t_cap = (jnp.where(dz > 0, -half_height, half_height) - o[2]) / dz  # the cap facing the ray
         x, y = o[0] + t_cap * d[0], o[1] + t_cap * d[1]
         cap = (x * x + y * y <= radius * radius) & (t_cap > 0)
         t = jnp.where(side, t_side, jnp.where(cap, t_cap, jnp.inf))
         local = [jnp.where(side, o[k] + t * d[k], 0.0) / radius for k in range(2)]
-        local.append(jnp.where(side, 0.0, -jnp.sign(dz)))
+        local.append(jnp.where(side, 0.0, jnp.where(dz > 0, -1.0, 1.0)))
         normal = tuple(sum(rot[i, k] * local[k] for k in range(3)) for i in range(3))
         return t, normal
 
-    def _robot(self, scene: Scene, origin, ray, forward):
+    def _robot(self, scene, origin, ray, forward):
         """Nearest robot geom: `(t, index, rgb)`, index -1 where none is hit."""
         t_best = jnp.full(ray[0].shape, jnp.inf)
         index = jnp.full(ray[0].shape, -1, jnp.int32)
@@ -338,10 +353,12 @@ class Camera:
         return t_best, index, rgb
 
     # ---- the frame ---------------------------------------------------------------------
-    def _trace(self, scene: Scene):
+    def _trace(self, scene, row: jax.Array, col: jax.Array):
+        """Floor, walls, sky and robot along the rays of the pixels at `row`, `col`. `scene` is
+        a `Scene` or a view with the same fields that yields scalars (`_TableView`)."""
         origin = tuple(scene.cam_pos[i] for i in range(3))
         forward = tuple(-scene.cam_rot[i, 2] for i in range(3))
-        ray = self._rays(scene.cam_rot)
+        ray = self._rays(scene.cam_rot, row, col)
         shape = ray[0].shape
 
         # floor and walls: the ray leaves the walls' inner box at t_wall
@@ -362,7 +379,8 @@ class Camera:
         # background colour: floor checker, wall grey (head light), sky black
         x = origin[0] + t_floor * ray[0]
         y = origin[1] + t_floor * ray[1]
-        parity = (jnp.floor(x / CHECKER) + jnp.floor(y / CHECKER)) % 2.0
+        squares = jnp.floor(x / CHECKER) + jnp.floor(y / CHECKER)
+        parity = squares - 2.0 * jnp.floor(0.5 * squares)
         face_light = [
             HEAD_AMBIENT + HEAD_DIFFUSE * jnp.maximum(sign * forward[axis], 0.0)
             for axis, sign in ((0, 1.0), (0, -1.0), (1, 1.0), (1, -1.0))
@@ -405,34 +423,105 @@ class Camera:
         bottom = ((xb - centre[0]) ** 2 + (yb - centre[1]) ** 2 <= r2) & (t_bottom < t_back)
         return top, bottom & ~top, jnp.where(top, t_top, t_bottom)
 
-    def render(self, scene: Scene) -> jax.Array:
-        """uint8[H, W, 3]: the RGB frame of one world."""
-        origin, ray, forward, t_back, rgb, _, _ = self._trace(scene)
-        planes = self._zone_planes(origin, ray)
-        # back to front by the distance of the disc centres from the camera (MuJoCo's order)
-        gap = scene.zone_xy - jnp.stack([origin[0], origin[1]])
+    def _zones_sorted(self, scene: Scene) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """Zone centres, colours and radii back to front by the distance of the disc centres
+        from the camera (the order in which MuJoCo blends transparent geoms)."""
+        gap = scene.zone_xy - scene.cam_pos[:2]
         order = jnp.argsort(-jnp.sum(gap * gap, axis=-1))
-        zone_xy = scene.zone_xy[order]
-        zone_rgb, zone_radius = jnp.asarray(self.zone_rgb)[order], jnp.asarray(self.zone_radius)[order]
+        return (scene.zone_xy[order], jnp.asarray(self.zone_rgb)[order],
+                jnp.asarray(self.zone_radius)[order])
+
+    def _shade(self, scene, zone_xy, zone_rgb, zone_radius, row, col) -> tuple:
+        """RGB in [0, 1] of the pixels at `row`, `col` (3 arrays); zones sorted back to front."""
+        origin, ray, forward, t_back, rgb, _, _ = self._trace(scene, row, col)
+        planes = self._zone_planes(origin, ray)
         top_light = HEAD_AMBIENT + HEAD_DIFFUSE * jnp.maximum(-forward[2], 0.0) + TOP_DIFFUSE
         cover = 1.0 - (1.0 - ZONE_ALPHA) ** 2
         (_, x_bottom, y_bottom), _ = planes
         for k in range(self.zone_rgb.shape[0]):
-            top, side, _ = self._in_zone(planes, t_back, zone_xy[k], zone_radius[k])
+            centre = (zone_xy[k, 0], zone_xy[k, 1])
+            top, side, _ = self._in_zone(planes, t_back, centre, zone_radius[k])
             # the side's outward normal, taken where the ray leaves through the bottom face
-            facing = -(forward[0] * (x_bottom - zone_xy[k, 0]) + forward[1] * (y_bottom - zone_xy[k, 1]))
+            facing = -(forward[0] * (x_bottom - centre[0]) + forward[1] * (y_bottom - centre[1]))
             side_light = HEAD_AMBIENT + HEAD_DIFFUSE * jnp.clip(facing / zone_radius[k], 0.0, 1.0)
             light = jnp.where(top, top_light, side_light)
             rgb = tuple(
                 jnp.where(top | side, c + cover * (jnp.minimum(zone_rgb[k, i] * light, 1.0) - c), c)
                 for i, c in enumerate(rgb)
             )
-        image = jnp.stack(rgb, axis=-1)
-        return jnp.round(jnp.clip(image, 0.0, 1.0) * 255.0).astype(jnp.uint8)
+        return tuple(jnp.floor(jnp.clip(c, 0.0, 1.0) * 255.0 + 0.5) for c in rgb)
+
+    def render(self, scene: Scene) -> jax.Array:
+        """uint8[H, W, 3]: the RGB frame of one world (batch it with `vmap`).
+
+        With `backend` "pallas" (the default on a GPU) the frame is one fused kernel per
+        world and block of pixels (`_kernel`); "xla" is the same arithmetic in plain jnp, which
+        XLA splits into several kernels with float32 temporaries per pixel.
+        """
+        if self._pallas_block() is None:
+            rgb = self._shade(scene, *self._zones_sorted(scene), *self._pixels())
+            return jnp.stack(rgb, axis=-1).astype(jnp.uint8)
+        return self._render_pallas(scene)
+
+    # ---- the fused kernel ---------------------------------------------------------------
+    def _pallas_block(self) -> int | None:
+        """Pixels per Pallas program, or None where the XLA path renders."""
+        backend = self.backend
+        if backend == "auto":
+            backend = "pallas" if jax.default_backend() == "gpu" else "xla"
+        if backend == "xla":
+            return None
+        pixels = self.size[0] * self.size[1]
+        return int(np.gcd(pixels, PALLAS_BLOCK))
+
+    def _render_pallas(self, scene: Scene) -> jax.Array:
+        from jax.experimental import pallas as pl
+        from jax.experimental.pallas import triton
+
+        interpret = self.backend == "pallas_interpret"
+
+        num_geoms, num_zones = len(self.geom_type), self.zone_rgb.shape[0]
+        fields = _table_fields(num_geoms, num_zones)
+        zone_xy, zone_rgb, zone_radius = self._zones_sorted(scene)
+        values = {"cam_pos": scene.cam_pos, "cam_rot": scene.cam_rot, "geom_pos": scene.geom_pos,
+                  "geom_rot": scene.geom_rot, "zone_xy": zone_xy, "zone_rgb": zone_rgb,
+                  "zone_radius": zone_radius}
+        table = jnp.concatenate([jnp.ravel(values[name]).astype(jnp.float32) for name in fields])
+        size = 1 << int(np.ceil(np.log2(table.shape[0])))  # Triton blocks are powers of two
+        table = jnp.pad(table, (0, size - table.shape[0]))
+        block, (height, width) = self._pallas_block(), self.size
+
+        def kernel(table_ref, out_ref):
+            views, offset = {}, 0
+            for name, shape in fields.items():
+                views[name] = _TableView(table_ref, offset, shape)
+                offset += int(np.prod(shape))
+            index = pl.program_id(0) * block + jax.lax.broadcasted_iota(jnp.int32, (block,), 0)
+            row = (index // width).astype(jnp.float32)
+            col = (index - (index // width) * width).astype(jnp.float32)
+            view = Scene(cam_pos=views["cam_pos"], cam_rot=views["cam_rot"], zone_xy=None,
+                         geom_pos=views["geom_pos"], geom_rot=views["geom_rot"])
+            r, g, b = self._shade(view, views["zone_xy"], views["zone_rgb"],
+                                  views["zone_radius"], row, col)
+            packed = r.astype(jnp.int32) + 256 * g.astype(jnp.int32) + 65536 * b.astype(jnp.int32)
+            out_ref[...] = packed
+
+        packed = pl.pallas_call(
+            kernel,
+            out_shape=jax.ShapeDtypeStruct((height * width,), jnp.int32),
+            grid=(height * width // block,),
+            in_specs=[pl.BlockSpec((size,), lambda j: (0,))],
+            out_specs=pl.BlockSpec((block,), lambda j: (j,)),
+            interpret=interpret,
+            # Triton (not Mosaic GPU): it lowers scalar table reads and batches under vmap
+            compiler_params=None if interpret else triton.CompilerParams(num_warps=4, num_stages=1),
+        )(table)
+        rgba = jax.lax.bitcast_convert_type(packed, jnp.uint8)  # little-endian: r, g, b, 0
+        return rgba[:, :3].reshape(height, width, 3)
 
     def first_hit(self, scene: Scene) -> Hit:
         """The first surface along each pixel's ray (geometry only, for tests and debugging)."""
-        origin, ray, _, t_back, _, kind, _ = self._trace(scene)
+        origin, ray, _, t_back, _, kind, _ = self._trace(scene, *self._pixels())
         planes = self._zone_planes(origin, ray)
         t_best = t_back
         for z in range(self.zone_rgb.shape[0]):
@@ -444,7 +533,29 @@ class Camera:
 
     def ray_directions(self, scene: Scene) -> jax.Array:
         """float32[H, W, 3]: each pixel's unit ray in the world frame (from `scene.cam_pos`)."""
-        return jnp.stack(self._rays(scene.cam_rot), axis=-1)
+        return jnp.stack(self._rays(scene.cam_rot, *self._pixels()), axis=-1)
+
+
+class _TableView:
+    """Read-only view of a flat float32 table (a Pallas ref) as the fields of a `Scene`, with
+    sorted zones: `view.cam_rot[i, k]`, `view.geom_pos[g][i]`, ... give scalars."""
+
+    def __init__(self, ref, offset: int = 0, shape: tuple[int, ...] = ()):
+        self._ref, self._offset, self._shape = ref, offset, shape
+
+    def __getitem__(self, index):
+        index = index if isinstance(index, tuple) else (index,)
+        offset, shape = self._offset, self._shape
+        for i in index:
+            stride = int(np.prod(shape[1:]))
+            offset, shape = offset + int(i) * stride, shape[1:]
+        return _TableView(self._ref, offset, shape) if shape else self._ref[offset]
+
+
+def _table_fields(num_geoms: int, num_zones: int) -> dict[str, tuple[int, ...]]:
+    return {"cam_pos": (3,), "cam_rot": (3, 3), "geom_pos": (num_geoms, 3),
+            "geom_rot": (num_geoms, 3, 3), "zone_xy": (num_zones, 2), "zone_rgb": (num_zones, 3),
+            "zone_radius": (num_zones,)}
 
 
 def zone_height(has_moving_zones: bool) -> float:
@@ -453,5 +564,5 @@ def zone_height(has_moving_zones: bool) -> float:
     return 0.01 if has_moving_zones else 0.02
 
 
-__all__ = ["ALL_ROBOT_GEOMS", "Camera", "CameraMount", "Hit", "MOUNTS", "ROBOT_GEOMS", "Scene",
+__all__ = ["ALL_ROBOT_GEOMS", "BACKENDS", "Camera", "CameraMount", "Hit", "MOUNTS", "ROBOT_GEOMS", "Scene",
            "ZONE_RGB", "zone_height"]
