@@ -1,4 +1,5 @@
-"""The `specrl-jax` command line: `envs`, `specs`, `eval` (one function per subcommand).
+"""The `specrl-jax` command line: `envs`, `specs`, `eval`, `train`, `run` (one function per
+subcommand).
 
 A subcommand is one function taking the parsed arguments, registered with its options by
 `@command(name, help, arg(...), ...)`; `main` builds the parser from the registry.
@@ -7,6 +8,8 @@ A subcommand is one function taking the parsed arguments, registered with its op
     specrl-jax specs [--prefix letter/]
     specrl-jax eval --env LetterLTL0-v0 --policy oracle --suite letter/finite/ind \\
         --seeds 5 --episodes 100 --out results/
+    specrl-jax train --method genz --env PointLTL0-v0 --seeds 5
+    specrl-jax run
 """
 
 from __future__ import annotations
@@ -22,6 +25,28 @@ from typing import Any
 Command = Callable[[argparse.Namespace], int]
 COMMANDS: dict[str, tuple[str, tuple[tuple[tuple, dict], ...], Command]] = {}
 POLICIES = ("random", "oracle")
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    return _int_at_least(text, 1)
+
+
+def nonnegative_int(text: str) -> int:
+    """argparse type: an integer >= 0."""
+    return _int_at_least(text, 0)
+
+
+def _int_at_least(text: str, low: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {text!r}") from None
+    if value < low:
+        raise argparse.ArgumentTypeError(f"expected an integer >= {low}, got {value}")
+    if value >= 2**31:
+        raise argparse.ArgumentTypeError(f"expected an integer below 2**31, got {value}")
+    return value
 
 
 def arg(*flags: str, **options: Any) -> tuple[tuple, dict]:
@@ -42,7 +67,8 @@ def command(name: str, help: str, *arguments: tuple[tuple, dict]) -> Callable[[C
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="specrl-jax", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="specrl-jax", description=__doc__.splitlines()[0] + " " + __doc__.splitlines()[1])
     sub = parser.add_subparsers(dest="command", required=True)
     for name, (help_text, arguments, fn) in COMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
@@ -67,6 +93,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return args.run(args)
     except (ValueError, TypeError) as err:
         print(f"specrl-jax {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:
+        print(f"specrl-jax {args.command}: error: {err.strerror or err}: {err.filename or ''}",
+              file=sys.stderr)
         return 2
 
 
@@ -112,12 +142,12 @@ def make_policy(name: str, env: Any) -> Any:
     arg("--env", required=True, help="env ID, e.g. LetterLTL0-v0"),
     arg("--policy", required=True, help=f"one of: {', '.join(POLICIES)}"),
     arg("--suite", required=True, action="append", help="suite name (repeat for several)"),
-    arg("--seeds", type=int, default=5, help="number of seeds; seeds are 1..N (default 5)"),
-    arg("--episodes", type=int, default=100, help="episodes per seed and spec (default 100)"),
-    arg("--horizon", type=int, default=None,
+    arg("--seeds", type=positive_int, default=5, help="number of seeds; seeds are 1..N (default 5)"),
+    arg("--episodes", type=positive_int, default=100, help="episodes per seed and spec (default 100)"),
+    arg("--horizon", type=positive_int, default=None,
         help="episode horizon of every suite (default: the env's for finite suites, 10x for infinite)"),
     arg("--out", default="results", help="output directory (default results/)"),
-    arg("--trajectories", type=int, default=4, help="episodes drawn on the map (LetterWorld)"),
+    arg("--trajectories", type=nonnegative_int, default=4, help="episodes drawn on the map (LetterWorld)"),
     arg("--no-progress", action="store_true", help="no progress bar"),
 )
 def eval_command(args: argparse.Namespace) -> int:
@@ -195,16 +225,17 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
     "a run directory.",
     arg("--method", required=True, choices=("genz", "deepltl")),
     arg("--env", default="LetterLTL0-v0", help="any single-agent env ID (`specrl-jax envs`)"),
-    arg("--seeds", type=int, default=1, help="independent runs trained side by side"),
-    arg("--seed", type=int, default=0),
-    arg("--total-steps", type=int, default=None,
+    arg("--seeds", type=positive_int, default=1, help="independent runs trained side by side"),
+    arg("--seed", type=nonnegative_int, default=0, help="base seed of the runs (default 0)"),
+    arg("--total-steps", type=positive_int, default=None,
         help="env interactions per run (default 15M on an accelerator, 1M on a CPU)"),
-    arg("--num-envs", type=int, default=None),
-    arg("--num-steps", type=int, default=None),
-    arg("--map-bank", type=int, default=65536,
+    arg("--num-envs", type=positive_int, default=None, help="envs stepped side by side per run"),
+    arg("--num-steps", type=positive_int, default=None, help="rollout steps per env and update"),
+    arg("--restart", action="store_true", help="discard a run already in --out instead of resuming it"),
+    arg("--map-bank", type=nonnegative_int, default=65536,
         help="LetterWorld: maps in the fast-reset bank (0: exact resets)"),
     arg("--out", default=None, help="run directory (default runs/<method>); resumes if present"),
-    arg("--eval-episodes", type=int, default=0, help="then evaluate on the world's paper suites"),
+    arg("--eval-episodes", type=nonnegative_int, default=0, help="then evaluate on the world's paper suites"),
 )
 def train_command(args: argparse.Namespace) -> int:
     enable_compilation_cache()
@@ -217,10 +248,11 @@ def train_command(args: argparse.Namespace) -> int:
     world_family = experiment.family(args.env)
     total = args.total_steps or (15_000_000 if platform != "cpu" else 1_000_000)
     overrides = experiment.default_overrides(platform, total, world_family)
-    overrides.update({k: v for k, v in (("num_envs", args.num_envs), ("num_steps", args.num_steps)) if v})
+    overrides.update({k: v for k, v in (("num_envs", args.num_envs), ("num_steps", args.num_steps))
+                      if v is not None})
     out = Path(args.out or f"runs/{args.method}")
     params, summary = experiment.train(args.method, args.env, out, overrides, args.seeds, args.seed,
-                                       map_bank=args.map_bank or None)
+                                       map_bank=args.map_bank or None, restart=args.restart)
     print(f"trained {args.seeds} x {summary['env_steps_per_seed']:,} steps, "
           f"{summary['env_steps_per_s']:,.0f} env-steps/s; run directory {out}")
     if args.eval_episodes > 0:
@@ -228,6 +260,8 @@ def train_command(args: argparse.Namespace) -> int:
                                       experiment.SUITES[world_family], args.eval_episodes)
         report.write_json(out / "eval.json", results, {"train": summary})
         print(report.markdown_tables(results))
+    print(f"wrote {out}/: config.json, metrics.jsonl, checkpoint.msgpack, params.msgpack, "
+          f"train_summary.json, curve.png" + (", eval.json" if args.eval_episodes > 0 else ""))
     return 0
 
 
@@ -235,10 +269,14 @@ def train_command(args: argparse.Namespace) -> int:
     "run",
     "The main demo: train GenZ-LTL on LetterWorld, evaluate on the finite suites (IND, OOD), "
     "print the paper-format table (a few minutes on a CPU; the paper's 15M steps on a GPU).",
-    arg("--total-steps", type=int, default=None, help="default 15M on an accelerator, 200k on a CPU"),
-    arg("--seeds", type=int, default=None, help="default 5 on an accelerator, 1 on a CPU"),
-    arg("--episodes", type=int, default=None, help="per spec and seed; default 100 (GPU) / 20 (CPU)"),
-    arg("--out", default="runs/run"),
+    arg("--total-steps", type=positive_int, default=None,
+        help="default 15M on an accelerator, 200k on a CPU"),
+    arg("--seeds", type=positive_int, default=None, help="default 5 on an accelerator, 1 on a CPU"),
+    arg("--episodes", type=positive_int, default=None,
+        help="per spec and seed; default 100 (GPU) / 20 (CPU)"),
+    arg("--out", default="runs/run",
+        help="run directory (default runs/run); a run with the same settings there is resumed"),
+    arg("--restart", action="store_true", help="discard a run already in --out instead of resuming it"),
     arg("--params", default=None,
         help="evaluate saved GenZ-LTL parameters (params.msgpack of a run) instead of training"),
 )
@@ -262,14 +300,18 @@ def run_command(args: argparse.Namespace) -> int:
         overrides = experiment.default_overrides("gpu" if gpu else "cpu", total)
         if not gpu:  # a short budget: fewer epochs per update keeps it to minutes on two cores
             overrides.update(num_envs=32, num_steps=64, update_epochs=10)
+        print(f"training GenZ-LTL on LetterLTL0-v0: {seeds} x {total:,} steps into {out}",
+              flush=True)
         params, summary = experiment.train("genz", "LetterLTL0-v0", out, overrides, seeds,
-                                           map_bank=65536 if gpu else 4096)
+                                           map_bank=65536 if gpu else 4096, restart=args.restart)
         print(f"trained GenZ-LTL: {seeds} x {summary['env_steps_per_seed']:,} steps at "
               f"{summary['env_steps_per_s']:,.0f} env-steps/s")
     suites = ("letter/finite/ind", "letter/finite/ood")
+    print(f"evaluating on {', '.join(suites)}: {episodes} episodes per spec and seed", flush=True)
     results = experiment.evaluate("genz", "LetterLTL0-v0", params, suites, episodes)
-    report.write_json(out / "results.json", results, {"train": summary, "episodes": episodes})
+    path = report.write_json(out / "results.json", results, {"train": summary, "episodes": episodes})
     print(report.markdown_tables(results))
+    print(f"wrote {path}" + ("" if args.params else f"; the run directory is {out}/"))
     return 0
 
 

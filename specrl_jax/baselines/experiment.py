@@ -71,18 +71,23 @@ def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int
 
 def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str, Any], num_seeds: int = 1,
           seed: int = 0, map_bank: int | None = 65536, chunk_updates: int = 10,
-          log: Callable[[str], None] = print, max_wall_s: float | None = None) -> tuple[Any, dict[str, Any]]:
-    """Train `num_seeds` runs; returns `(params with a leading seed axis, training summary)`."""
+          log: Callable[[str], None] = print, max_wall_s: float | None = None,
+          restart: bool = False) -> tuple[Any, dict[str, Any]]:
+    """Train `num_seeds` runs; returns `(params with a leading seed axis, training summary)`.
+    `restart` discards a run directory's earlier run (else it is resumed if its settings match)."""
     key_bank, key_train = jax.random.split(jax.random.key(seed))
     start = time.perf_counter()
+    if map_bank and family(env_id) == "letter":
+        log(f"building a bank of {map_bank:,} exactly sampled maps for training resets ...")
     _world, _params, method_obj, config = build(method, env_id, ppo_overrides, map_bank, key_bank)
     setup = time.perf_counter() - start
+    log(f"set up {env_id} in {setup:.1f}s; compiling the training step (the first chunk includes it)")
     trainer = make_train(config, method_obj)
     start = time.perf_counter()
     runner = runs.train_in_run_dir(
         trainer, key_train, run_dir, chunk_updates, num_seeds,
         extra_config={"method": method, "env": env_id, "map_bank": map_bank, "seed": seed},
-        summarise=method_module(method).summarise, log=log, max_wall_s=max_wall_s,
+        summarise=method_module(method).summarise, log=log, max_wall_s=max_wall_s, restart=restart,
     )
     wall = time.perf_counter() - start
     rows = runs.read_metrics(run_dir)

@@ -35,10 +35,20 @@ def save_checkpoint(path: str | os.PathLike, runner: RunnerState) -> None:
 
 
 def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerState:
-    """Read a checkpoint written by `save_checkpoint` into the structure of `template`."""
+    """Read a checkpoint written by `save_checkpoint` into the structure of `template`.
+
+    Raises:
+        ValueError: naming the file, when it cannot be read or does not fit `template`.
+    """
     raw = template.replace(key=jax.random.key_data(template.key))
-    stored = add_derived_spec_fields(serialization.msgpack_restore(Path(path).read_bytes()))
-    restored = serialization.from_state_dict(jax.device_get(raw), stored)
+    try:
+        stored = add_derived_spec_fields(serialization.msgpack_restore(Path(path).read_bytes()))
+        restored = serialization.from_state_dict(jax.device_get(raw), stored)
+    except Exception as err:  # msgpack and flax raise assorted types for a damaged file
+        raise ValueError(
+            f"checkpoint {path} cannot be read ({type(err).__name__}: {err}); delete it, or start "
+            "over with --restart, or use another --out"
+        ) from err
     restored = jax.tree.map(lambda t, x: jax.device_put(np.asarray(x), t.sharding), raw, restored)
     return restored.replace(key=jax.random.wrap_key_data(restored.key))
 
@@ -94,6 +104,7 @@ def train_in_run_dir(
     log: Callable[[str], None] = print,
     max_updates: int | None = None,
     max_wall_s: float | None = None,
+    restart: bool = False,
 ) -> RunnerState:
     """Train `num_seeds` runs of `trainer` side by side (`vmap`) in chunks of `chunk_updates`,
     resuming from `run_dir` when it holds a checkpoint.
@@ -101,14 +112,28 @@ def train_in_run_dir(
     `summarise` derives extra scalars per update and seed (e.g. rates); `max_updates` and
     `max_wall_s` (this session's seconds, checked after each chunk) stop early, resumable. Rows'
     `wall_s` is training time summed over sessions (a resumed run continues the clock of the
-    checkpoint's update), so rates and times to a level stay on one clock. Returns the final
-    runner state, with a leading seed axis `[num_seeds]`.
+    checkpoint's update), so rates and times to a level stay on one clock. A run directory is
+    resumed only when its `config.json` equals this run's settings (else `ValueError` names the
+    differing settings); `restart` discards what it holds. Returns the final runner state, with a
+    leading seed axis `[num_seeds]`.
     """
     run_dir = Path(run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ValueError(f"cannot create the run directory {run_dir}: {err.strerror}") from err
     cfg = trainer.config
-    config = {"ppo": dataclasses.asdict(cfg), "num_seeds": num_seeds, **(extra_config or {})}
-    (run_dir / "config.json").write_text(json.dumps(config, indent=2, default=str))
+    config = json.loads(json.dumps(
+        {"ppo": dataclasses.asdict(cfg), "num_seeds": num_seeds, **(extra_config or {})},
+        default=str))
+    if restart:
+        for name in (CHECKPOINT, "metrics.jsonl", "config.json", "curve.png"):
+            (run_dir / name).unlink(missing_ok=True)
+    check_resumable(run_dir, config)
+    try:
+        (run_dir / "config.json").write_text(json.dumps(config, indent=2))
+    except OSError as err:
+        raise ValueError(f"cannot write to the run directory {run_dir}: {err.strerror}") from err
     # Seeds are initialised one by one: a vmapped orthogonal init (batched QR) hangs on XLA:CPU.
     init = jax.jit(trainer.init)
     seeds = [init(k) for k in jax.random.split(key, num_seeds)]
@@ -148,6 +173,33 @@ def train_in_run_dir(
                 break
     plot_curve(run_dir)
     return runner
+
+
+def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
+    if not isinstance(tree, dict):
+        return {prefix: tree}
+    out = {}
+    for key, value in tree.items():
+        out.update(_flat(value, f"{prefix}.{key}" if prefix else str(key)))
+    return out
+
+
+def check_resumable(run_dir: Path, config: dict[str, Any]) -> None:
+    """Raise unless `run_dir` is fresh or holds a run of exactly these settings."""
+    stored_path = run_dir / "config.json"
+    has_run = (run_dir / CHECKPOINT).exists() or (run_dir / "metrics.jsonl").exists()
+    if not has_run:
+        return
+    stored = json.loads(stored_path.read_text()) if stored_path.exists() else {}
+    old, new = _flat(stored), _flat(config)
+    differing = sorted(k for k in old.keys() | new.keys() if old.get(k) != new.get(k))
+    if differing:
+        shown = ", ".join(f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in differing[:6])
+        more = f" and {len(differing) - 6} more" if len(differing) > 6 else ""
+        raise ValueError(
+            f"{run_dir} holds a run with other settings ({shown}{more}); resume it with its own "
+            "settings, pick a new --out, or pass --restart to discard it"
+        )
 
 
 def _wall_at(run_dir: Path, update: int) -> float:

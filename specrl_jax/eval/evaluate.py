@@ -192,6 +192,23 @@ def _outcome(state: TaskState, aborted: jax.Array, visits: jax.Array | None) -> 
                         visits)
 
 
+def check_seeds(seeds: Sequence[int]) -> tuple[int, ...]:
+    """Seeds as a tuple of distinct ints in [0, 2**32); a clear error otherwise."""
+    seeds = tuple(seeds)
+    if not seeds:
+        raise ValueError("seeds is empty; give at least one integer seed")
+    for seed in seeds:
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+            raise TypeError(f"seeds must be integers, got {seed!r}")
+        if not 0 <= int(seed) < 2**32:
+            raise ValueError(f"seeds must lie in 0 .. 2**32 - 1, got {seed}")
+    if len(set(int(s) for s in seeds)) != len(seeds):
+        dupes = sorted({int(s) for s in seeds if list(seeds).count(s) > 1})
+        raise ValueError(f"seeds must be distinct (a repeated seed repeats its episodes), got "
+                         f"{dupes} more than once")
+    return tuple(int(s) for s in seeds)
+
+
 def evaluate(policy: Callable[..., Any] | StatefulPolicy, env_id_or_env: Any, specs: Any,
              seeds: Sequence[int], episodes_per_seed: int, *, policy_params: Any = None,
              env_params: Any = None, horizon: int | None = None) -> EvalResult:
@@ -211,9 +228,7 @@ def evaluate(policy: Callable[..., Any] | StatefulPolicy, env_id_or_env: Any, sp
     Returns:
         An `EvalResult` with the episode table as numpy arrays.
     """
-    seeds = tuple(int(s) for s in seeds)
-    if not seeds:
-        raise ValueError("seeds is empty; give at least one integer seed")
+    seeds = check_seeds(seeds)
     if not isinstance(episodes_per_seed, int) or episodes_per_seed < 1:
         raise ValueError(f"episodes_per_seed must be a positive int, got {episodes_per_seed!r}")
     env_id, env, params = resolve_env(env_id_or_env, env_params)

@@ -19,7 +19,7 @@ import numpy as np
 
 from specrl_jax import automata, specs
 from specrl_jax.eval import original_ldba
-from specrl_jax.eval.evaluate import EvalResult, make_evaluator
+from specrl_jax.eval.evaluate import EvalResult, check_seeds, make_evaluator
 from specrl_jax.eval.metrics import EpisodeTable
 from specrl_jax.eval.report import SuiteResult
 from specrl_jax.tasks import TaskEnv
@@ -72,6 +72,7 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
         One `SuiteResult` per suite, in the order given.
     """
     check_suites(suites, env)
+    seeds = check_seeds(seeds)
     by_horizon: dict[int, list[str]] = {}
     for name in suites:
         by_horizon.setdefault(suite_horizon(name, params.max_steps, horizon), []).append(name)
