@@ -151,8 +151,6 @@ def make_policy(name: str, env: Any) -> Any:
     arg("--no-progress", action="store_true", help="no progress bar"),
 )
 def eval_command(args: argparse.Namespace) -> int:
-    if args.seeds < 1 or args.episodes < 1:
-        raise ValueError(f"--seeds and --episodes must be >= 1, got {args.seeds}, {args.episodes}")
     enable_compilation_cache()
     from specrl_jax.envs.registry import make
     from specrl_jax.eval import report
