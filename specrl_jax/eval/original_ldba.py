@@ -417,16 +417,29 @@ def _read(ldba: OriginalLDBA, counts: jax.Array, symbol: jax.Array) -> jax.Array
     return jnp.where((symbol >= 0) & (symbol < num_symbols), new, counts)
 
 
-def _jump(ldba: OriginalLDBA, counts: jax.Array, jump: jax.Array) -> jax.Array:
-    """"policy": runs in a state with an epsilon edge follow its first edge when `jump`."""
-    num_states = ldba.delta.shape[-2]
-    edge = ldba.epsilon[:, 0]
-    target = jnp.where(jump & (edge >= 0), edge, jnp.arange(num_states))
-    return _gather_max(counts, target[:, None] == jnp.arange(num_states)[None, :])
+def _jump(ldba: OriginalLDBA, q: jax.Array, want: jax.Array) -> tuple[jax.Array, jax.Array]:
+    """"policy": the run in state q (-1 dead) follows its state's first epsilon edge if `want`
+    and there is one; returns (state, the jump is still wanted)."""
+    edge = ldba.epsilon[jnp.maximum(q, 0), 0]
+    can = (q >= 0) & (edge >= 0)
+    return jnp.where(want & can, edge, q), want & ~can
 
 
-def _can_jump(ldba: OriginalLDBA, counts: jax.Array) -> jax.Array:
-    return jnp.any((counts >= 0) & (ldba.epsilon[:, 0] >= 0))
+def _step_policy(ldba: OriginalLDBA, tracker: TrackerState, symbol: jax.Array,
+                 our_epsilon: jax.Array) -> tuple[TrackerState, jax.Array]:
+    """The one run of the "policy" rule, followed by state (O(S) per step, no S x S work)."""
+    num_states, num_symbols = ldba.delta.shape
+    q, pending = _jump(ldba, state(tracker), our_epsilon | tracker.pending)
+    reads = (q >= 0) & ~our_epsilon & (symbol >= 0) & (symbol < num_symbols)
+    row, column = jnp.maximum(q, 0), jnp.clip(symbol, 0, num_symbols - 1)
+    accepted = reads & ldba.accepting[row, column]
+    q = jnp.where(reads, ldba.delta[row, column], q)
+    # a pending jump is taken as soon as the run arrives in a state with an epsilon edge
+    q_jumped, still = _jump(ldba, q, pending & ~our_epsilon)
+    q, pending = q_jumped, jnp.where(our_epsilon, pending, still)
+    visits = tracker.visits + accepted.astype(jnp.int32)
+    counts = jnp.where(jnp.arange(num_states) == q, visits, -1).astype(jnp.int32)
+    return TrackerState(counts=counts, visits=visits, pending=pending), accepted
 
 
 def step(ldba: OriginalLDBA, tracker: TrackerState, label: jax.Array, our_epsilon: jax.Array,
@@ -451,22 +464,12 @@ def step(ldba: OriginalLDBA, tracker: TrackerState, label: jax.Array, our_epsilo
     symbol = (symbol_of(ldba, label) if label.dtype == jnp.bool_
               else label.astype(jnp.int32))
     our_epsilon = jnp.asarray(our_epsilon, bool)
-    counts, pending = tracker.counts, tracker.pending
     if rule == "policy":
-        wants = our_epsilon | pending
-        jump = wants & _can_jump(ldba, counts)
-        counts = _jump(ldba, counts, jump)
-        pending = wants & ~jump
-    else:
-        counts = jnp.where(our_epsilon, counts, _gather_max(counts, ldba.closure))
+        return _step_policy(ldba, tracker, symbol, our_epsilon)
+    counts = jnp.where(our_epsilon, tracker.counts, _gather_max(tracker.counts, ldba.closure))
     counts = jnp.where(our_epsilon, counts, _read(ldba, counts, symbol))
-    if rule == "policy":
-        # a pending jump is taken as soon as the run arrives in a state with an epsilon edge
-        jump = pending & ~our_epsilon & _can_jump(ldba, counts)
-        counts = _jump(ldba, counts, jump)
-        pending = pending & ~jump
     visits = jnp.maximum(tracker.visits, counts.max())
-    new = TrackerState(counts=counts, visits=visits, pending=pending)
+    new = TrackerState(counts=counts, visits=visits, pending=tracker.pending)
     return new, visits > tracker.visits
 
 
