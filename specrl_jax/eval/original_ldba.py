@@ -10,6 +10,8 @@ Public API:
 
     ldbas = suite_ldbas("zone/infinite/per", env)   # stacked OriginalLDBA over env.alphabet,
                                                     # suite order; None if no formula has one
+    ldbas = formula_ldbas(formulas, env)             # the same for any formula list
+    ldba = jax.tree.map(lambda x: x[i], ldbas)       # episode's automaton (or vmap over i)
     tracker = init(ldba)                             # one (unstacked) automaton; vmap for stacks
     tracker, accepted = step(ldba, tracker, label, our_epsilon, rule="policy")
     tracker.visits                                   # int32[] accepting visits so far
@@ -18,7 +20,9 @@ Public API:
     original_hoa(formula) / suite_formulas(name)     # the shipped HOA texts
 
 `label` is either `info["propositions"]` (bool[P]) or the alphabet row (an integer symbol).
-`our_epsilon` says our own step was an epsilon step (no env step, no label).
+`our_epsilon` says our own step was an epsilon step (no env step, no label). Step the tracker
+on every step of our episode and stop with it (the original's own violation does not end our
+episode; `is_violated` reports it). Entries with `present` False count 0.
 
 Epsilon rules (a static argument; docs/fidelity.md, "original LDBA tracker"):
 
@@ -361,27 +365,32 @@ def stack_ldbas(ldbas: Sequence[OriginalLDBA | None], alphabet: np.ndarray) -> O
     return OriginalLDBA(**jax.device_put(out))
 
 
-def suite_ldbas(name: str, env: Any) -> OriginalLDBA | None:
-    """The original automata of a suite's formulas, in suite order, over the world's alphabet.
+def formula_ldbas(formulas: Sequence[str], env: Any) -> OriginalLDBA | None:
+    """The original automata of any formula list (e.g. several suites' formulas concatenated, as
+    the evaluator stacks them), in order, over the world's alphabet.
 
     Args:
-        name: a suite name (`specs.list_suites()`); formulas are matched by their exact text
-            with the paper's infinite-horizon rows, so method suites get None entries.
+        formulas: formula texts; matched by exact text with the paper's infinite-horizon rows.
         env: anything with `propositions` (names) and `alphabet` (bool[A, P]), e.g. a world.
 
     Returns:
-        A stacked `OriginalLDBA` with a leading axis of the suite's length (`present[i]` False
+        A stacked `OriginalLDBA` with a leading axis of `len(formulas)` (`present[i]` False
         where formula i has no original automaton), or None if none of them has one.
     """
-    from specrl_jax import specs  # eval may use specs; imported here to keep import light
-
-    formulas = specs.suite(name)
     texts = [original_hoa(f) for f in formulas]
     if all(t is None for t in texts):
         return None
     alphabet = np.asarray(env.alphabet, bool)
     return stack_ldbas([None if t is None else build_ldba(t, env.propositions, alphabet)
                         for t in texts], alphabet)
+
+
+def suite_ldbas(name: str, env: Any) -> OriginalLDBA | None:
+    """`formula_ldbas` of a named suite's formulas (`specs.suite(name)`), in suite order; method
+    suites (`deepltl/...`, `genz/...`) and finite suites have none and give None."""
+    from specrl_jax import specs  # eval may use specs; imported here to keep import light
+
+    return formula_ldbas(specs.suite(name), env)
 
 
 # ---------------------------------------------------------------------------------------------

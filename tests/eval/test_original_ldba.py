@@ -311,6 +311,11 @@ def test_suite_stacks_and_vmap():
     assert stacked.delta.shape[0] == 3 and bool(stacked.present.all())
     assert ol.suite_formulas("letter/infinite/rsp") == specs.suite("letter/infinite/rsp")
     assert ol.suite_ldbas("deepltl/letter/infinite", env) is None
+    formulas = specs.suite("letter/infinite/rec")[:1] + ["G F a"] + specs.suite(
+        "letter/infinite/rsp")[2:]
+    some = ol.formula_ldbas(formulas, env)
+    assert np.asarray(some.present).tolist() == [True, False, True]
+    np.testing.assert_array_equal(np.asarray(some.delta[2]), np.asarray(stacked.delta[2]))
     word = jnp.asarray(sticky_word(np.random.default_rng(0), 13, 25))
     flags = jnp.zeros(25, bool)
     batched = jax.vmap(lambda l: _count(l, word, flags, "policy")[0].visits)(stacked)
