@@ -45,7 +45,7 @@ class ArmConfig:
     keepout: float = 0.08
     horizon: int = 200
     max_tries: int = 100
-    layouts_per_round: int = 256
+    layouts_per_round: int = 64
     max_rounds: int = 400
     table_contacts: bool = True
 

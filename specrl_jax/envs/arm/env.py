@@ -8,9 +8,9 @@ from typing import Any
 import gymnasium
 import jax
 import jax.numpy as jnp
-import mujoco
 import numpy as np
 from flax import struct
+from jax.experimental import checkify
 
 from specrl_jax.envs import spaces
 from specrl_jax.envs.arm import layout as layout_lib
@@ -55,7 +55,7 @@ class ArmEnv(Env):
       `ap` float32[P, 4] (mode 0: `[dir_x, dir_y, dir_z, dist]` to the nearest region of each
       colour) or float32[P, 8, 4] (mode 1: per link, arm propositions 8 links, gripper
       propositions the 2 fingers then zero rows).
-    Action: float32[7] in [-1, 1] (clipped; NaN counts as 0): joint targets q + 0.05 a, 20
+    Action: float32[7] in [-1, 1] (clipped; NaN/inf: see `base.Env.step`): joint targets q + 0.05 a, 20
       physics substeps of 2 ms (dt 0.04 s) under PyBullet's emulated position motor.
     Labels: mode 0 `<colour>`: grasp target within a region; mode 1 `arm_<colour>`: an arm link
       (links 1-7, hand) touches or penetrates a region, `grippers_<colour>`: both fingers do.
@@ -70,12 +70,7 @@ class ArmEnv(Env):
             raise TypeError(f"config must be an ArmConfig, got {type(config).__name__}")
         self.config = config
         self.propositions = config.propositions
-        self.mj_model = arm_model.load_model()
-        if not config.table_contacts:
-            spec = mujoco.MjSpec.from_file(str(arm_model.MODEL_PATH))
-            for pair in list(spec.pairs):
-                spec.delete(pair)
-            self.mj_model = spec.compile()
+        self.mj_model = arm_model.load_model(config.table_contacts)
         self.physics = Physics(self.mj_model, arm_model.FORCE_LIMITS)
         self._link_ids = arm_model.body_ids(self.mj_model)
         self._hand_id = int(self.mj_model.body("hand").id)
@@ -126,6 +121,10 @@ class ArmEnv(Env):
     def reset_env(self, key: jax.Array, params: ArmParams) -> tuple[Obs, ArmState]:
         if params.layout_bank is None:
             centres, ok = layout_lib.sample_centres(key, self.config)
+            checkify.debug_check(
+                ok, "the arm's layout sampler found no valid layout in max_rounds={r} rounds",
+                r=self.config.max_rounds,
+            )
         else:
             bank = jnp.asarray(params.layout_bank)
             centres, ok = bank[jax.random.randint(key, (), 0, bank.shape[0])], jnp.array(True)

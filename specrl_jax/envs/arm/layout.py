@@ -60,7 +60,8 @@ def keepout_ok(center: jax.Array, config: ArmConfig) -> jax.Array:
     of the neutral robot (and its centre more than `keepout + r` from the frame-only links)."""
     tris, points = neutral_obstacles()
     reach = config.keepout + config.region_radius
-    dist, _ = jax.vmap(geometry.signed_distance, in_axes=(None, 0))(center, jnp.asarray(tris))
+    # one hull at a time: under vmapped resets the per-triangle work is the memory peak
+    dist = jax.lax.map(lambda tri: geometry.signed_distance(center, tri)[0], jnp.asarray(tris))
     point_dist = jnp.linalg.norm(jnp.asarray(points) - center, axis=-1)
     return jnp.all(dist > reach) & jnp.all(point_dist > reach)
 
@@ -106,7 +107,7 @@ def sample_centres(key: jax.Array, config: ArmConfig) -> tuple[jax.Array, jax.Ar
 
     def round_(key_round):
         centres, ok = jax.lax.map(
-            lambda k: attempt(k, config), jax.random.split(key_round, n), batch_size=min(n, 32)
+            lambda k: attempt(k, config), jax.random.split(key_round, n), batch_size=min(n, 8)
         )
         first = jnp.argmax(ok)
         return centres[first], ok[first]

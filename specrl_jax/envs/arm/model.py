@@ -38,9 +38,15 @@ GRASP_SITE = "grasptarget"
 
 
 @functools.cache
-def load_model() -> mujoco.MjModel:
-    """The arm's MuJoCo model (7 hinge joints, fingers welded closed, table and floor)."""
-    return mujoco.MjModel.from_xml_path(str(MODEL_PATH))
+def load_model(table_contacts: bool = True) -> mujoco.MjModel:
+    """The arm's MuJoCo model (7 hinge joints, fingers welded closed, table and floor); without
+    `table_contacts` nothing collides (the contact pairs are dropped)."""
+    if table_contacts:
+        return mujoco.MjModel.from_xml_path(str(MODEL_PATH))
+    spec = mujoco.MjSpec.from_file(str(MODEL_PATH))
+    for pair in list(spec.pairs):
+        spec.delete(pair)
+    return spec.compile()
 
 
 def read_hull(name: str) -> tuple[np.ndarray, np.ndarray]:

@@ -23,7 +23,7 @@ SUBSTEPS = 20
 #: PyBullet's default position gain over its timestep: v* = kp (q_t - q) / h
 MOTOR_RATE = 0.1 / 0.002
 #: projected Gauss-Seidel sweeps over the 7 motor rows per substep
-PGS_SWEEPS = 8
+PGS_SWEEPS = 16
 
 
 @struct.dataclass

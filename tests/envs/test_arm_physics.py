@@ -1,0 +1,111 @@
+"""The arm's emulated PyBullet position motor: the box-limited motor problem, one env step
+against MuJoCo C under the same control law, and the original's measured tracking gains."""
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from scipy.optimize import minimize
+
+from specrl_jax.envs.arm import model as arm_model
+from specrl_jax.envs.arm.physics import MOTOR_RATE, Physics, motor_torque
+
+H = 0.002
+
+
+def _box_qp_torque(mass, free_accel, qvel, qpos, target, limit):
+    """Reference: the motor's torques as the minimiser of 1/2 t' M^-1 t - want' t in the box
+    (the optimality conditions are the velocity-motor LCP), by L-BFGS-B."""
+    inverse = np.linalg.inv(mass)
+    want = (MOTOR_RATE * (target - qpos) - qvel) / H - free_accel
+    result = minimize(lambda t: 0.5 * t @ inverse @ t - want @ t, np.zeros(7),
+                      jac=lambda t: inverse @ t - want, bounds=list(zip(-limit, limit)),
+                      method="L-BFGS-B", options={"ftol": 1e-15, "gtol": 1e-12, "maxiter": 5000})
+    return result.x
+
+
+def _c_step(model, data, target, substeps=20):
+    """One env step on MuJoCo C: each substep, the reference motor torques, then mj_step."""
+    for _ in range(substeps):
+        mujoco.mj_forward(model, data)
+        mass = np.zeros((7, 7))
+        mujoco.mj_fullM(model, data, mass)
+        free_accel = np.linalg.solve(mass, data.qfrc_passive - data.qfrc_bias)
+        data.qfrc_applied[:] = _box_qp_torque(mass, free_accel, data.qvel, data.qpos, target,
+                                              arm_model.FORCE_LIMITS)
+        mujoco.mj_step(model, data)
+
+
+def test_motor_torque_solves_the_box_problem():
+    rng = np.random.default_rng(0)
+    solve = jax.jit(motor_torque, static_argnums=(6,))
+    for _ in range(5):
+        a = rng.normal(size=(7, 7))
+        mass = a @ a.T + 0.5 * np.eye(7)
+        args = (mass, rng.normal(0, 5, 7), rng.normal(0, 0.3, 7), np.zeros(7),
+                rng.uniform(-0.05, 0.05, 7))
+        limit = rng.uniform(5, 60, 7)
+        ours = np.asarray(solve(*[jnp.asarray(x, jnp.float32) for x in args],
+                                jnp.asarray(limit, jnp.float32), H))
+        ref = _box_qp_torque(*args, limit)
+        assert np.all(np.abs(ours) <= limit + 1e-3)
+        assert np.abs(ours - ref).max() < 2e-2 * limit.max()
+        assert np.sum(np.abs(ref) > limit - 1e-6) > 0  # the bound was active
+
+
+@pytest.fixture(scope="module")
+def physics():
+    """Without table contacts (near the neutral pose the arm does not reach the table; the
+    contact pairs would triple the compile time on a CPU)."""
+    return Physics(arm_model.load_model(table_contacts=False), arm_model.FORCE_LIMITS)
+
+
+def test_one_env_step_matches_mujoco_c_under_the_same_control(physics):
+    model = arm_model.load_model(table_contacts=False)
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(1)
+    step = jax.jit(physics.step)
+    state = physics.init(jnp.asarray(arm_model.NEUTRAL_QPOS, jnp.float32))
+    data.qpos[:] = arm_model.NEUTRAL_QPOS
+    for _ in range(3):
+        target = np.asarray(state.qpos, np.float64) + 0.05 * rng.uniform(-1, 1, 7)
+        data.qpos[:], data.qvel[:] = np.asarray(state.qpos), np.asarray(state.qvel)
+        _c_step(model, data, target)
+        state = step(state, jnp.asarray(target, jnp.float32))
+        assert np.abs(np.asarray(state.qpos) - data.qpos).max() < 2e-4
+        assert np.abs(np.asarray(state.qvel) - data.qvel).max() < 2e-2
+
+
+def test_tracking_gains_match_the_original_under_random_actions(physics):
+    """Per-joint least squares of dq on 0.05 a_t and 0.05 a_{t-1} (the reference's measurement:
+    gains 0.61, 0.50, 0.82, 0.82, 0.86, 0.877, 0.878; lags 0.21 and 0.12 on joints 1 and 2),
+    and the arm holds still under zero action."""
+    batch, steps = 4, 170
+
+    @jax.jit
+    def rollout(key):
+        q0 = jnp.tile(jnp.asarray(arm_model.NEUTRAL_QPOS, jnp.float32), (batch, 1))
+        state = jax.vmap(physics.init)(q0)
+        actions = jax.random.uniform(key, (steps, batch, 7), minval=-1.0, maxval=1.0)
+        actions = actions.at[:20].set(0.0)  # first: 20 steps of zero action
+
+        def body(state, action):
+            new = jax.vmap(physics.step)(state, state.qpos + 0.05 * action)
+            return new, new.qpos - state.qpos
+
+        _, dq = jax.lax.scan(body, state, actions)
+        return actions, dq
+
+    actions, dq = (np.asarray(x) for x in rollout(jax.random.key(0)))
+    assert np.isfinite(dq).all()
+    assert np.abs(dq[:20].sum(0)).max() < 2e-3  # holds against gravity
+    a, dq = 0.05 * actions[21:], dq[21:]
+    gains, lags = [], []
+    for j in range(7):
+        x = np.stack([a[1:, :, j].ravel(), a[:-1, :, j].ravel()], 1)
+        g, lag = np.linalg.lstsq(x, dq[1:, :, j].ravel(), rcond=None)[0]
+        gains.append(g)
+        lags.append(lag)
+    assert np.abs(np.array(gains) - [0.61, 0.50, 0.82, 0.82, 0.86, 0.877, 0.878]).max() < 0.05, gains
+    assert abs(lags[0] - 0.21) < 0.05 and abs(lags[1] - 0.12) < 0.05, lags
