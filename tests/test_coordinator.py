@@ -1,0 +1,235 @@
+"""The multi-agent coordinator (`tasks.coordinator`): the split of a joint subgoal by agent on
+hand-built system specs (independent, cooperative "both at once", mixed, persistence with its
+epsilon jump), agreement with a plain-Python transcription of the split rule, clear errors for
+specs naming agents the world lacks, the system view of per-agent termination, and one
+coordinated episode through the ordinary task loop and evaluator."""
+
+from __future__ import annotations
+
+import itertools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import specrl_jax
+from specrl_jax import automata
+from specrl_jax.eval.evaluate import record_episodes
+from specrl_jax.tasks import TaskEnv
+from specrl_jax.tasks.coordinator import (
+    SystemWorld,
+    agent_codes,
+    check_spec_agents,
+    compile_system_specs,
+    current_subgoal,
+    make_coordinator,
+    split_subgoal,
+)
+
+
+@pytest.fixture(scope="module")
+def world():
+    env, params = specrl_jax.make("PointLTL0MA2-v0")
+    alphabet = np.asarray(env.alphabet)
+    agent_alphabet = np.asarray(env.world.alphabet)
+    codes = jnp.asarray(agent_codes(alphabet, agent_alphabet, env.num_agents))
+    return env, params, alphabet, agent_alphabet, codes
+
+
+def _symbol(env, alphabet, *names):
+    row = np.array([p in names for p in env.propositions])
+    return int(np.nonzero((alphabet == row).all(1))[0][0])
+
+
+def _parts(env, goal):
+    """Per agent: (active, reach colours, avoid colours), as sets of names."""
+    cols = env.colour_propositions
+    names = lambda mask: {c for c, on in zip(cols, np.asarray(mask)) if on}
+    return [(bool(goal.agents.active[i]), names(goal.agents.reach[i]), names(goal.agents.avoid[i]))
+            for i in range(env.num_agents)]
+
+
+def _walk(world, formula, labels):
+    """The subgoal at the initial state, then after each joint label (taking the epsilon jump
+    where the coordinator takes it)."""
+    env, _, alphabet, agent_alphabet, codes = world
+    spec = automata.compile_spec(formula, env.propositions, alphabet=alphabet)
+    q, goals = spec.init, []
+    for names in [()] + labels:
+        symbol = _symbol(env, alphabet, *names)
+        goal = current_subgoal(spec, q, jnp.int32(symbol), codes, agent_alphabet)
+        if names:
+            jump = bool(goal.take_epsilon)
+            q = spec.epsilon[q, goal.epsilon_slot] if jump else spec.delta[q, symbol]
+            goal = current_subgoal(spec, q, jnp.int32(symbol), codes, agent_alphabet)
+        goals.append(goal)
+    return goals
+
+
+def test_independent_spec_gives_each_agent_its_own_task(world):
+    env = world[0]
+    goals = _walk(world, "(!yellow_0 U blue_0) & (!green_1 U magenta_1)", [("blue_0",)])
+    assert _parts(env, goals[0]) == [(True, {"blue"}, {"yellow"}), (True, {"magenta"}, {"green"})]
+    # agent 0 done: it holds still, agent 1 keeps its task
+    assert _parts(env, goals[1]) == [(False, set(), set()), (True, {"magenta"}, {"green"})]
+    assert not bool(goals[1].take_epsilon) and not bool(goals[1].stuck)
+
+
+def test_cooperative_spec_asks_both_at_once(world):
+    env = world[0]
+    goals = _walk(world, "!(magenta_0 | magenta_1) U (blue_0 & blue_1)", [("blue_0",)])
+    both = [(True, {"blue"}, {"magenta"})] * 2
+    assert _parts(env, goals[0]) == both
+    assert _parts(env, goals[1]) == both  # one agent there is not progress: both still go
+
+
+def test_mixed_spec_alternates_individual_and_joint_parts(world):
+    env = world[0]
+    formula = "!magenta_0 U (blue_0 & F(magenta_1 & F(blue_0 & blue_1)))"
+    goals = _walk(world, formula, [("blue_0",), ("magenta_1",)])
+    # shortest: blue_0 and magenta_1 together (F includes now), then both at blue
+    assert _parts(env, goals[0]) == [(True, {"blue"}, {"magenta"}), (True, {"magenta"}, set())]
+    assert _parts(env, goals[1]) == [(False, set(), set()), (True, {"magenta"}, set())]
+    assert _parts(env, goals[2]) == [(True, {"blue"}, set()), (True, {"blue"}, set())]
+
+
+def test_an_agent_free_of_the_subgoal_is_idle_but_keeps_its_avoid_set(world):
+    env = world[0]
+    (goal,) = _walk(world, "F yellow_0 & G !green_1", [])
+    assert _parts(env, goal) == [(True, {"yellow"}, set()), (False, set(), {"green"})]
+
+
+def test_persistence_takes_the_epsilon_jump_only_at_the_joint_target(world):
+    env = world[0]
+    formula = "F G(yellow_0 & magenta_1) & G !(green_0 | blue_1)"
+    spec = automata.compile_spec(formula, env.propositions, alphabet=world[2])
+    assert bool(automata.has_epsilon(spec, spec.init))
+    start, there_early, after = _walk(world, formula, [("yellow_0",), ("yellow_0", "magenta_1")])
+    assert not bool(start.take_epsilon) and int(start.epsilon_slot) == -1
+    assert _parts(env, start) == [(True, {"yellow"}, {"green"}), (True, {"magenta"}, {"blue"})]
+    assert not bool(there_early.take_epsilon)  # only agent 0 there: jumping now would violate
+    # after the jump: stay, every other label avoided, leaving the zone too (the empty label)
+    assert _parts(env, after) == [(True, {"yellow"}, {"blue", "green", "magenta"}),
+                                  (True, {"magenta"}, {"blue", "green", "yellow"})]
+    assert bool(after.agents.avoid_symbols[:, 0].all())
+    both = jnp.int32(_symbol(env, world[2], "yellow_0", "magenta_1"))
+    goal = current_subgoal(spec, spec.init, both, world[4], world[3])
+    assert bool(goal.take_epsilon) and int(goal.epsilon_slot) == 0
+
+
+def _split_reference(reach, avoid, joint, agent_alphabet, num_agents):
+    """The split rule transcribed on Python lists (module docstring of tasks.coordinator)."""
+    num_props = agent_alphabet.shape[1]
+    labels = [tuple(row) for row in agent_alphabet.tolist()]
+    parts = [[labels.index(tuple(row[i * num_props:(i + 1) * num_props]))
+              for i in range(num_agents)] for row in joint.tolist()]
+    empty = labels.index(tuple([False] * num_props))
+    chosen = [a for a in range(len(parts)) if reach[a]]
+    if not chosen:
+        target = [empty] * num_agents
+    else:
+        best = min(chosen, key=lambda a: (sum(sum(agent_alphabet[c]) for c in parts[a]), a))
+        target = parts[best]
+    out = []
+    for i in range(num_agents):
+        active = target[i] != empty
+        avoid_i = set()
+        for a in range(len(parts)):
+            others = all(parts[a][j] in (empty, target[j]) for j in range(num_agents) if j != i)
+            if avoid[a] and others and not (active and parts[a][i] == target[i]):
+                avoid_i.add(parts[a][i])
+        out.append((active, {target[i]} if active else set(), avoid_i))
+    return out
+
+
+@pytest.mark.parametrize("env_id", ["PointLTL0MA2-v0", "PointLTL0MA3-v0"])
+def test_split_matches_a_python_transcription_on_random_pairs(env_id):
+    env, _ = specrl_jax.make(env_id)
+    joint, agent_alphabet = np.asarray(env.alphabet), np.asarray(env.world.alphabet)
+    codes = jnp.asarray(agent_codes(joint, agent_alphabet, env.num_agents))
+    split = jax.jit(jax.vmap(lambda r, a: split_subgoal(r, a, codes, agent_alphabet)))
+    rng = np.random.default_rng(0)
+    num = 24
+    density = rng.choice([0.02, 0.1, 0.5], size=(num, 1))
+    reach = rng.random((num, joint.shape[0])) < density
+    reach[0] = False  # an empty reach set: nobody acts
+    avoid = (rng.random((num, joint.shape[0])) < 0.3) & ~reach
+    goals = split(jnp.asarray(reach), jnp.asarray(avoid))
+    for k in range(num):
+        expected = _split_reference(reach[k], avoid[k], joint, agent_alphabet, env.num_agents)
+        for i, (active, reach_i, avoid_i) in enumerate(expected):
+            assert bool(goals.active[k, i]) == active
+            assert set(np.nonzero(np.asarray(goals.reach_symbols[k, i]))[0]) == reach_i
+            assert set(np.nonzero(np.asarray(goals.avoid_symbols[k, i]))[0]) == avoid_i
+            props = np.any(np.asarray(goals.avoid_symbols[k, i])[:, None] & agent_alphabet, 0)
+            np.testing.assert_array_equal(goals.avoid[k, i], props)
+
+
+def test_agent_codes_rebuild_the_joint_alphabet(world):
+    env, _, alphabet, agent_alphabet, codes = world
+    rebuilt = np.concatenate([agent_alphabet[np.asarray(codes)[:, i]] for i in range(2)], axis=1)
+    np.testing.assert_array_equal(rebuilt, alphabet)
+    pairs = sorted(map(tuple, np.asarray(codes).tolist()))
+    assert pairs == list(itertools.product(range(5), repeat=2))
+    with pytest.raises(ValueError, match="3 agents x 4"):
+        agent_codes(alphabet, agent_alphabet, 3)
+
+
+def test_specs_naming_missing_agents_are_refused(world):
+    env = world[0]
+    with pytest.raises(ValueError, match=r"blue_2 \(agent 2\).*2 agents, agent_0, agent_1"):
+        check_spec_agents("F blue_0 & F blue_2", env)
+    with pytest.raises(ValueError, match="agent 7"):
+        compile_system_specs(["G !green_1", "F(yellow_7 & blue_0)"], env)
+    with pytest.raises(ValueError, match=r"unknown propositions \['red_0'\]"):
+        check_spec_agents("F red_0", env)
+    check_spec_agents("F blue_1", env)  # a known agent passes
+    single, _ = specrl_jax.make("PointLTL0-v0")
+    with pytest.raises(TypeError, match="multi-agent world"):
+        make_coordinator(lambda p, o, g, k: jnp.zeros(2), single)
+
+
+class _TwoAgents:
+    """A stand-in world whose step reports given per-agent flags."""
+
+    default_params = None
+
+    def __init__(self, terminated, time):
+        self.flags, self.time = jnp.asarray(terminated), time
+
+    def step(self, key, state, action, params):
+        state = type("S", (), {"time": jnp.int32(self.time)})()
+        return {}, state, jnp.ones(2), self.flags, ~self.flags, {}
+
+
+def test_system_world_ends_on_any_agent_and_truncates_at_the_horizon_only():
+    params = type("P", (), {"max_steps": 10})()
+    cases = [([False, False], 5, False, False), ([False, True], 5, True, False),
+             ([False, False], 10, False, True), ([True, True], 10, True, False)]
+    for flags, time, terminated, truncated in cases:
+        out = SystemWorld(_TwoAgents(flags, time)).step(None, None, None, params)
+        assert out[3].shape == () and bool(out[3]) == terminated
+        assert out[4].shape == () and bool(out[4]) == truncated
+        assert float(out[2]) == 2.0
+
+
+def test_a_coordinated_episode_moves_only_the_agents_with_a_part(world):
+    env, params, *_ = world
+    calls = []
+
+    def agent_policy(agent_params, obs, goal, key):
+        calls.append(jax.tree.map(jnp.shape, obs))
+        return jnp.asarray([1.0, 0.5]) * agent_params
+
+    specs = compile_system_specs(["F yellow_0 & G !green_1"], env)
+    task = TaskEnv(SystemWorld(env), specs)
+    policy = make_coordinator(agent_policy, env)
+    states, alive = record_episodes(policy, task, params.replace(max_steps=8),
+                                    jax.random.split(jax.random.key(3), 1), jnp.zeros(1, jnp.int32),
+                                    policy_params=jnp.float32(1.0), horizon=8)
+    assert calls[0] == {"ap": (4, 16), "ego": (16,)}  # one agent's single-agent observation
+    xy = np.asarray(states.env_state.agents.physics.agent_pos[0, :, :, :2])  # [T + 1, N, 2]
+    assert bool(alive[0, 1:].all())
+    assert np.linalg.norm(xy[-1, 0] - xy[0, 0]) > 1e-3  # agent 0 reaches for yellow
+    np.testing.assert_allclose(xy[-1, 1], xy[0, 1], atol=1e-6)  # agent 1 idle: zero action
