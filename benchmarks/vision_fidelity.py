@@ -6,7 +6,7 @@ one class per zone colour, robot) and reports the intersection over union of eac
 original's frames are anti-aliased (MuJoCo's 4 samples per pixel), so ours is rendered at
 `--supersample` times the size and box-averaged down.
 
-    python benchmarks/vision_fidelity.py            # prints the table, writes docs/vision_fidelity.png
+    python benchmarks/vision_fidelity.py   # prints the table, writes docs/vision_fidelity.png
 """
 
 from __future__ import annotations

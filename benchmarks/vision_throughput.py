@@ -1,7 +1,8 @@
 """Camera throughput of the Zone worlds: rendering alone, env steps with auto-reset, memory per
 world and the largest PPO rollout batch, for `PointLTL0Vision-v0` (or --env) at several sizes.
 
-Cases, run in this order until --budget seconds have passed (the rest is skipped and said so):
+Cases, run by kind in `--order` (default render, rollout, step) until --budget seconds have
+passed (the rest is skipped and said so):
 
   render   frames/s of `camera.render(camera.scene(...))` over a batch of worlds from resets; a
            jitted scan of --steps frames per world with the zones nudged every frame (so nothing
@@ -66,7 +67,8 @@ def _env(args: argparse.Namespace, size: int, backend: str = "auto"):
     return env, params
 
 
-def render_case(args: argparse.Namespace, size: int, num: int, backend: str = "auto") -> dict[str, Any]:
+def render_case(args: argparse.Namespace, size: int, num: int,
+                backend: str = "auto") -> dict[str, Any]:
     env, params = _env(args, size, backend)
     camera = env.camera
     _, state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(
@@ -143,7 +145,8 @@ def step_case(args: argparse.Namespace, size: int, num: int, mode: str,
         start = time.perf_counter()
         state, obs, _ = jax.block_until_ready(compiled(jax.random.fold_in(key, repeat), state, obs))
         times.append(time.perf_counter() - start)
-    return {"case": f"step ({mode}, {_backend(batched.env.env)})", "size": size, "batch": num, "steps": args.steps,
+    return {"case": f"step ({mode}, {_backend(batched.env.env)})", "size": size, "batch": num,
+            "steps": args.steps,
             "per_s": num * args.steps / min(times), "compile_s": compile_s,
             "bytes": _memory(compiled)}
 
@@ -175,7 +178,8 @@ def rollout_case(args: argparse.Namespace, size: int, num: int,
     limit = (jax.devices()[0].memory_stats() or {}).get("bytes_limit")
     per_world = held / num if held else None
     largest = int(0.95 * limit / per_world) if (limit and per_world) else None
-    return {"case": f"rollout {ROLLOUT_STEPS} ({_backend(batched.env.env)})", "size": size, "batch": num, "steps": ROLLOUT_STEPS,
+    return {"case": f"rollout {ROLLOUT_STEPS} ({_backend(batched.env.env)})", "size": size,
+            "batch": num, "steps": ROLLOUT_STEPS,
             "per_s": num * ROLLOUT_STEPS / run_s, "compile_s": compile_s, "bytes": held,
             "largest_batch": largest, "device_bytes": limit}
 
@@ -199,20 +203,21 @@ def _row(r: dict[str, Any]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="PointLTL0Vision-v0")
-    parser.add_argument("--render", nargs="*", default=["64:65536", "64:262144", "256:8192", "256:16384"],
-                        help="size:batch[:backend] for the render-alone case (backend auto, xla, pallas)")
-    parser.add_argument("--step", nargs="*", default=["64:65536:exact", "64:131072:exact",
-                                                     "256:8192:exact", "256:16384:exact",
-                                                     "64:131072:bank", "256:16384:bank"],
+    parser.add_argument("--render", nargs="*", default=["64:262144", "256:32768"],
+                        help="size:batch[:backend] for the render-alone case "
+                        "(backend auto, xla, pallas)")
+    parser.add_argument("--step", nargs="*", default=["64:262144:exact", "256:32768:exact",
+                                                     "64:262144:bank", "256:32768:bank"],
                         help="size:batch:reset[:backend] for the env-step case")
-    parser.add_argument("--rollout", nargs="*", default=["64:4096", "256:512"],
+    parser.add_argument("--rollout", nargs="*", default=["64:8192", "256:1024"],
                         help="size:batch[:backend] for the 128-step rollout memory case")
-    parser.add_argument("--order", nargs=3, default=["render", "step", "rollout"],
+    parser.add_argument("--order", nargs=3, default=["render", "rollout", "step"],
                         help="order of the case kinds")
     parser.add_argument("--steps", type=int, default=20)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--bank-size", type=int, default=65536)
-    parser.add_argument("--budget", type=float, default=1e9, help="seconds; later cases are skipped")
+    parser.add_argument("--budget", type=float, default=1e9,
+                        help="seconds; later cases are skipped")
     parser.add_argument("--out", default=None, help="markdown file to append the table to")
     args = parser.parse_args()
 
@@ -228,9 +233,11 @@ def main() -> None:
     device = jax.devices()[0]
     header = [
         f"Device: {device.device_kind} ({device.platform}). Versions: {_versions()}.",
-        f"Date: {datetime.date.today().isoformat()}. Command: `{shlex.join(['python', *sys.argv])}`",
+        f"Date: {datetime.date.today().isoformat()}. "
+        f"Command: `{shlex.join(['python', *sys.argv])}`",
         "",
-        "| case | image | batch | steps/call | throughput (best) | compile s | MiB per world | largest batch |",
+        "| case | image | batch | steps/call | throughput (best) | compile s | MiB per world "
+        "| largest batch |",
         "|---|---|---|---|---|---|---|---|",
     ]
     print("\n".join(header), flush=True)

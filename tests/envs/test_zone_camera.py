@@ -231,11 +231,13 @@ def _reference_layout(env):
     return dict(
         agent_xy=jnp.asarray(FIDELITY.AGENT_XY), agent_yaw=jnp.asarray(FIDELITY.AGENT_YAW),
         zone_xy=jnp.asarray(FIDELITY.ZONE_XY), zone_color=jnp.asarray(env.zone_color),
-        zone_radius=jnp.asarray(env.zone_radius), zone_direction=jnp.zeros(8), zone_phase=jnp.zeros(8),
+        zone_radius=jnp.asarray(env.zone_radius), zone_direction=jnp.zeros(8),
+        zone_phase=jnp.zeros(8),
     )
 
 
-def _project(point: np.ndarray, cam_pos: np.ndarray, cam_rot: np.ndarray, fovy: float) -> np.ndarray:
+def _project(point: np.ndarray, cam_pos: np.ndarray, cam_rot: np.ndarray,
+             fovy: float) -> np.ndarray:
     """Pinhole projection of a world point to (row, col) pixel coordinates (numpy)."""
     v = cam_rot.T @ (point - cam_pos)
     tan = np.tan(np.deg2rad(fovy) / 2)
@@ -246,12 +248,14 @@ def _project(point: np.ndarray, cam_pos: np.ndarray, cam_rot: np.ndarray, fovy: 
 
 def test_moving_zone_moves_in_the_image(moving_world):
     env, params, reset_to, step, zone_positions = moving_world
-    far = [[-2.2, 2.2], [-2.2, -2.2], [2.2, -2.2], [-2.2, 0.0], [0.0, -2.2], [0.0, 2.2], [-1.0, -2.2]]
+    far = [[-2.2, 2.2], [-2.2, -2.2], [2.2, -2.2], [-2.2, 0.0], [0.0, -2.2], [0.0, 2.2],
+           [-1.0, -2.2]]
     # the moving green zone (zone 0) 0.9 m ahead of the Point, the others static, behind or aside
     layout = dict(
         agent_xy=jnp.zeros(2), agent_yaw=jnp.array(0.0), zone_xy=jnp.asarray([[0.9, 0.0], *far]),
         zone_color=jnp.asarray(env.zone_color), zone_radius=jnp.asarray(env.zone_radius),
-        zone_direction=jnp.asarray([1.0] + [0.0] * 7), zone_phase=jnp.asarray([np.pi / 2] + [0.0] * 7),
+        zone_direction=jnp.asarray([1.0] + [0.0] * 7),
+        zone_phase=jnp.asarray([np.pi / 2] + [0.0] * 7),
     )
     obs, state = reset_to(jax.random.key(0), layout, params)
     mount = MOUNTS["Point"]
@@ -274,19 +278,19 @@ def test_moving_zone_moves_in_the_image(moving_world):
 
 
 def test_frames_are_deterministic_and_batch_as_single_worlds(moving_world):
-    env, params, *_ = moving_world
-    keys = jax.random.split(jax.random.key(3), 3)
-    reset = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))
-    obs, state = reset(keys, params)
-    again, _ = reset(keys, params)
-    np.testing.assert_array_equal(obs["image"], again["image"])
+    env, params, reset_to, *_ = moving_world
+    layouts = [_reference_layout(env), dict(_reference_layout(env), agent_yaw=jnp.asarray(0.3))]
+    obs = [reset_to(jax.random.key(0), layout, params)[0]["image"] for layout in layouts]
+    again = reset_to(jax.random.key(5), layouts[0], params)[0]["image"]
+    np.testing.assert_array_equal(obs[0], again)
+    assert not np.array_equal(obs[0], obs[1])  # another pose, another frame
+    # a vmapped batch of scenes renders each world as it renders alone (the env's own frames)
     camera = env.camera
-    render = jax.jit(lambda q, z: camera.render(camera.scene(q, z)))
-    zones = jax.vmap(env.zone_positions)(state)
-    for i in range(3):
-        single = render(state.physics.qpos[i], zones[i])
-        np.testing.assert_array_equal(single, obs["image"][i])
-    assert not np.array_equal(obs["image"][0], obs["image"][1])  # other keys, other frames
+    qpos = jnp.stack([jnp.asarray([*layout["agent_xy"], layout["agent_yaw"]]) for layout in layouts])
+    zones = jnp.stack([layout["zone_xy"] for layout in layouts]).astype(jnp.float32)
+    batched = jax.jit(jax.vmap(lambda q, z: camera.render(camera.scene(q, z))))(qpos, zones)
+    for i in range(2):
+        np.testing.assert_array_equal(batched[i], obs[i])
 
 
 def test_shapes_dtypes_kinds_and_validation(moving_world):

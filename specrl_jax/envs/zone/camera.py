@@ -11,10 +11,15 @@ geom groups). The scene is a few primitives, so each pixel's ray is intersected 
   blended back to front by their centre's distance from the camera, as MuJoCo sorts them;
 * the four walls (boxes at +-3.5 m, inner faces at +-3.45 m, z -0.05..0.55), grey 0.5 lit by the
   head light only;
-* the robot's own geoms that can be in view (spheres, boxes, capsules; cylinders too), opaque, lit by MuJoCo's
-  head light (ambient 0.1, diffuse 0.4 along the view direction) and the scene's light from
-  straight above (diffuse 1);
+* the robot's own geoms that can be in view (spheres, boxes, capsules; cylinders too), opaque,
+  lit by MuJoCo's head light (ambient 0.1, diffuse 0.4 along the view direction) and the scene's
+  light from straight above (diffuse 1);
 * the sky, black (the original's star skybox could not be read; its reference frames are black).
+
+The per-pixel arithmetic (`Camera._shade`) runs either as plain jnp over the whole frame, or on a
+GPU inside one Pallas (Triton) kernel per world and block of pixels, reading the world's scene
+from a flat table (`_TableView`); XLA alone splits the jnp version into several kernels with
+float32 temporaries per pixel (2.5x slower, 9x the memory on an H100; benchmarks/RESULTS.md).
 
 Shading departures (no specular highlights, no floor reflections, no anti-aliasing) are listed in
 `docs/fidelity.md`; `docs/vision.md` compares frames with the original's.
@@ -206,7 +211,9 @@ class Camera:
                 f"drawable geom types are {sorted(supported)} (sphere, capsule, cylinder, box); "
                 f"got {self.geom_type}"
             )
-        self.geom_size = tuple(tuple(float(v) for v in mj_model.geom_size[g]) for g in self.geom_ids)
+        self.geom_size = tuple(
+            tuple(float(v) for v in mj_model.geom_size[g]) for g in self.geom_ids
+        )
         self.geom_rgb = tuple(tuple(rgb) for _, rgb in geoms)
         self._model = mjx.put_model(mj_model, impl="jax")
         self._data = mjx.make_data(self._model)
@@ -315,7 +322,8 @@ class Camera:
         b = o[0] * d[0] + o[1] * d[1]
         disc = b * b - a * (o[0] * o[0] + o[1] * o[1] - radius * radius)
         t_side = (-b - jnp.sqrt(jnp.maximum(disc, 0.0))) / jnp.maximum(a, 1e-12)
-        side = (disc >= 0) & (a > 1e-12) & (jnp.abs(o[2] + t_side * d[2]) <= half_height) & (t_side > 0)
+        within = jnp.abs(o[2] + t_side * d[2]) <= half_height
+        side = (disc >= 0) & (a > 1e-12) & within & (t_side > 0)
         dz = jnp.where(jnp.abs(d[2]) < 1e-12, 1e-12, d[2])
         t_cap = (jnp.where(dz > 0, -half_height, half_height) - o[2]) / dz  # the cap facing the ray
         x, y = o[0] + t_cap * d[0], o[1] + t_cap * d[1]
@@ -409,7 +417,8 @@ class Camera:
         """The ray's points on the discs' bottom and top planes: ((t, x, y), (t, x, y))."""
         planes = []
         for z in self.zone_z:
-            t = jnp.where(ray[2] < 0, (z - origin[2]) / jnp.where(ray[2] < 0, ray[2], -1.0), jnp.inf)
+            down = ray[2] < 0
+            t = jnp.where(down, (z - origin[2]) / jnp.where(down, ray[2], -1.0), jnp.inf)
             planes.append((t, origin[0] + t * ray[0], origin[1] + t * ray[1]))
         return planes
 
@@ -564,5 +573,6 @@ def zone_height(has_moving_zones: bool) -> float:
     return 0.01 if has_moving_zones else 0.02
 
 
-__all__ = ["ALL_ROBOT_GEOMS", "BACKENDS", "Camera", "CameraMount", "Hit", "MOUNTS", "ROBOT_GEOMS", "Scene",
+__all__ = ["ALL_ROBOT_GEOMS", "BACKENDS", "Camera", "CameraMount", "Hit", "MOUNTS", "ROBOT_GEOMS",
+           "Scene",
            "ZONE_RGB", "zone_height"]
