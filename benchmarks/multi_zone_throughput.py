@@ -6,8 +6,9 @@ observation, labels, reward and flags are folded into a checksum carried by the 
 cannot drop any of the work. "exact" = the auto-reset computes a full reset (a fresh layout by
 the original's multi-agent rejection sampler, every robot's forward pass) for every world at
 every step and selects it where the world's episode ended; "bank" = the same with opt-in
-`env.with_map_bank(key, params, --bank-size)` resets (exact layouts sampled up front). Compile time is measured apart; the
-run is timed after one warm-up call, with `block_until_ready`, best and median of --repeats.
+`env.with_map_bank(key, params, --bank-size)` resets (exact layouts sampled up front). Compile
+time is measured apart; the run is timed after one warm-up call, with `block_until_ready`, best
+and median of --repeats.
 A Markdown table is appended to --results with device, versions, date and command.
 """
 
@@ -33,7 +34,8 @@ from specrl_jax.envs.wrappers import BatchedEnv
 
 def checksum(obs: Any, reward: jax.Array, done: jax.Array, info: dict[str, Any]) -> jax.Array:
     """A float32 scalar that depends on every output of the step."""
-    total = jnp.sum(reward) + jnp.sum(done) + jnp.sum(info["propositions"]) + jnp.sum(info["symbol"])
+    total = jnp.sum(reward) + jnp.sum(done) + jnp.sum(info["propositions"])
+    total = total + jnp.sum(info["symbol"])
     for leaf in jax.tree.leaves(obs):
         total = total + jnp.sum(leaf, dtype=jnp.float32)
     return total.astype(jnp.float32)

@@ -133,7 +133,8 @@ def test_lidar_labels_and_symbol_match_the_original_formulas(world):
         for i in range(2):
             for p, colour in enumerate(env.colour_propositions):
                 zones = ZONES[[k for k, c in enumerate(env.world.zone_color) if c == p]]
-                np.testing.assert_allclose(obs["ap"][i, p], lidar_reference(pos[i], mat[i], zones), atol=2e-6)
+                expected = lidar_reference(pos[i], mat[i], zones)
+                np.testing.assert_allclose(obs["ap"][i, p], expected, atol=2e-6)
                 inside = np.linalg.norm(zones - pos[i, :2], axis=1) <= 0.5
                 assert label[i, p] == inside.any(), (t, i, colour)
             others = lidar_reference(pos[i], mat[i], pos[[1 - i], :2])
@@ -157,7 +158,8 @@ def test_reset_to_round_trip_hand_built_start_and_independent_agents(world):
     np.testing.assert_allclose(obs["others"][1, 0, [3, 4]], np.exp(-0.4), rtol=1e-5)
     np.testing.assert_allclose(obs["ego"][:, 0:3], [[0, 0, 9.81]] * 2, atol=1e-4)  # at rest
     for t in range(3):  # thrust on agent 1 only: agent 0 stays, agent 1 moves along +y
-        _, state, *_ = fns["step"](jax.random.key(t), state, jnp.asarray([[0.0, 0.0], [1.0, 0.0]]), params)
+        thrust_1 = jnp.asarray([[0.0, 0.0], [1.0, 0.0]])
+        _, state, *_ = fns["step"](jax.random.key(t), state, thrust_1, params)
     pos = np.asarray(state.agents.physics.agent_pos)
     np.testing.assert_allclose(pos[0, :2], [0.0, 0.0], atol=1e-7)
     assert pos[1, 1] > 0.004 and abs(pos[1, 0] - 0.8) < 1e-5
@@ -192,14 +194,17 @@ def test_batch_auto_reset_horizon_and_members(world):
     starts = np.asarray(env.layout(state)["agent_xy"])
     for t in range(HORIZON + 3):
         step_keys = jax.random.split(jax.random.key(100 + t), BATCH)
-        obs, state, _, terminated, truncated, info = fns["auto_step"](step_keys, state, actions[t], params)
+        out = fns["auto_step"](step_keys, state, actions[t], params)
+        obs, state, _, terminated, truncated, info = out
         assert np.isfinite(np.asarray(obs["ego"])).all()
         assert (np.asarray(obs["ap"]) >= 0).all() and (np.asarray(obs["others"]) <= 1).all()
         if t < 3:  # a member of the batch follows the same path as stepped alone
             single, member, *_ = fns["step"](step_keys[1], member, actions[t, 1], params)
-            chex.assert_trees_all_close(single, jax.tree.map(lambda x: x[1], obs), rtol=1e-5, atol=1e-5)
+            member_obs = jax.tree.map(lambda x: x[1], obs)
+            chex.assert_trees_all_close(single, member_obs, rtol=1e-5, atol=1e-5)
         if t == HORIZON - 1:
-            assert np.asarray(truncated | terminated).all() and np.asarray(info["episode_done"]).all()
+            assert np.asarray(truncated | terminated).all()
+            assert np.asarray(info["episode_done"]).all()
             assert (np.asarray(state.time) == 0).all()
             assert not np.allclose(env.layout(state)["agent_xy"], starts)
             assert not np.allclose(info["final_observation"]["ego"], obs["ego"])

@@ -68,7 +68,8 @@ class MultiZoneConfig:
     max_restarts: int = 10000
 
     def __post_init__(self) -> None:
-        if not isinstance(self.num_agents, int) or isinstance(self.num_agents, bool) or self.num_agents < 1:
+        num = self.num_agents
+        if not isinstance(num, int) or isinstance(num, bool) or num < 1:
             raise ValueError(f"num_agents must be a positive int, got {self.num_agents!r}")
         if self.agent_zone_gap < 0 or self.collision_distance < 0:
             raise ValueError(

@@ -166,11 +166,14 @@ class MultiZoneEnv(Env):
     def _random_layout(self, key: jax.Array, zone_xy: jax.Array, agent_xy: jax.Array) -> dict:
         """Fresh yaws (and Car/Ant joints) per agent, one set of moving-zone directions and
         phases, as the single-agent world draws them."""
-        xy = jnp.concatenate([agent_xy[:, None, :], jnp.broadcast_to(zone_xy, (self.num_agents, *zone_xy.shape))], axis=1)
+        zones = jnp.broadcast_to(zone_xy, (self.num_agents, *zone_xy.shape))
+        xy = jnp.concatenate([agent_xy[:, None, :], zones], axis=1)
         per_agent = jax.vmap(self.world._random_layout)(jax.random.split(key, self.num_agents), xy)
         return {k: v if k in AGENT_KEYS else v[0] for k, v in per_agent.items()}
 
-    def reset_to(self, key: jax.Array, layout: dict[str, Any], params: MultiZoneParams) -> tuple[Obs, MultiZoneState]:
+    def reset_to(
+        self, key: jax.Array, layout: dict[str, Any], params: MultiZoneParams
+    ) -> tuple[Obs, MultiZoneState]:
         """Start an episode from `layout` (as returned by `layout`); `key` is unused."""
         del params
         layout = {k: jnp.asarray(v) for k, v in layout.items()}

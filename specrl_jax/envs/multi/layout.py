@@ -68,7 +68,9 @@ class _Sampler(NamedTuple):
     key: jax.Array
 
 
-def sample_positions(key: jax.Array, config: MultiZoneConfig) -> tuple[jax.Array, jax.Array, jax.Array]:
+def sample_positions(
+    key: jax.Array, config: MultiZoneConfig
+) -> tuple[jax.Array, jax.Array, jax.Array]:
     """Sample zone and agent centres as the original's multi-agent world does.
 
     Returns:

@@ -58,6 +58,8 @@ class OriginalLayout:
     def __call__(self, obs: dict[str, Any]) -> dict[str, dict[str, np.ndarray]]:
         obs = {k: np.asarray(v, np.float32) for k, v in obs.items()}
         return {
-            agent: {f"{stem}_{i}": obs[source][i][index] for stem, source, index, _, _ in self.entries}
+            agent: {
+                f"{stem}_{i}": obs[source][i][index] for stem, source, index, _, _ in self.entries
+            }
             for i, agent in enumerate(self.agents)
         }
