@@ -12,10 +12,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from flax import struct
 
 import specrl_jax
 from specrl_jax import automata
-from specrl_jax.eval.evaluate import record_episodes
+from specrl_jax.eval.evaluate import evaluate, record_episodes
 from specrl_jax.tasks import TaskEnv
 from specrl_jax.tasks.coordinator import (
     SystemWorld,
@@ -214,22 +215,113 @@ def test_system_world_ends_on_any_agent_and_truncates_at_the_horizon_only():
         assert float(out[2]) == 2.0
 
 
-def test_a_coordinated_episode_moves_only_the_agents_with_a_part(world):
+COLOURS = ("blue", "green", "magenta", "yellow")
+
+
+@struct.dataclass
+class _DotParams:
+    max_steps: int = 40
+
+
+@struct.dataclass
+class _DotState:
+    xy: jax.Array  # float32[N, 2]
+    time: jax.Array
+
+
+class _DotWorld:
+    """Two point agents moving at most 0.25 per step from the origin among four zones of radius
+    0.3 (one per colour, 2 m out on the axes); `ap[i]` holds agent i's offset to each zone."""
+
+    colour_propositions = COLOURS
+    centres = np.asarray([[2.0, 0.0], [0.0, 2.0], [-2.0, 0.0], [0.0, -2.0]], np.float32)
+    agents, num_agents = ("agent_0", "agent_1"), 2
+    propositions = tuple(f"{c}_{i}" for i in range(2) for c in COLOURS)
+    num_propositions = 8
+    obs_kinds = {"ap": "vector", "ego": "vector", "others": "vector"}
+    default_params = _DotParams()
+    action_space = type("Space", (), {"shape": (2, 2)})()
+    world = type("One", (), {"alphabet": automata.zero_or_one(4)})()
+    alphabet = automata.product(automata.zero_or_one(4), automata.zero_or_one(4))
+
+    def _obs(self, xy):
+        offsets = self.centres[None] - xy[:, None]
+        return {"ap": offsets, "ego": xy, "others": xy[::-1]}
+
+    def reset(self, key, params):
+        xy = jnp.zeros((2, 2))
+        return self._obs(xy), _DotState(xy, jnp.int32(0))
+
+    def step(self, key, state, action, params):
+        norm = jnp.linalg.norm(action, axis=-1, keepdims=True)
+        xy = state.xy + action * jnp.minimum(1.0, 0.25 / jnp.maximum(norm, 1e-9))
+        labels = jnp.linalg.norm(self.centres[None] - xy[:, None], axis=-1) <= 0.3
+        done = jnp.zeros(2, bool)
+        state = _DotState(xy, state.time + 1)
+        return self._obs(xy), state, jnp.zeros(2), done, done, {"propositions": labels.reshape(-1)}
+
+
+def _towards_reach(agent_params, obs, goal, key):
+    """An oracle agent: straight at the zone of its reach colour (zero without one)."""
+    return jnp.sum(jnp.where(goal.reach[:, None], obs["ap"], 0.0), axis=0)
+
+
+def test_oracle_agents_under_the_coordinator_solve_system_specs_through_evaluate():
+    dots = _DotWorld()
+    world = SystemWorld(dots)
+    formulas = [
+        "(!yellow_0 U blue_0) & (!green_1 U magenta_1)",  # independent: 7 steps each, in parallel
+        "!(magenta_0 | magenta_1) U ((blue_0 & blue_1) & F(green_0 & green_1))",  # cooperative
+        "F yellow_0 & F(blue_0 & F green_1)",  # mixed: one agent's leg, one joint leg
+        "G F blue_0 & G F green_1 & G !(yellow_0 | magenta_1)",  # recurrence (infinite)
+    ]
+    policy = make_coordinator(_towards_reach, dots)
+    result = evaluate(policy, (world, world.default_params), formulas, seeds=[0],
+                      episodes_per_seed=2)
+    table = result.table
+    np.testing.assert_array_equal(table.success[0, :3], True)
+    assert not table.violation.any() and not table.aborted.any()
+    # blue from the origin: 1.7 m to the zone's edge at 0.25 m/step; from blue to green: 2.4 m
+    np.testing.assert_array_equal(table.steps[0, 0], 7)
+    np.testing.assert_array_equal(table.steps[0, 1], 7 + 10)
+    np.testing.assert_array_equal(table.steps[0, 2], 7 + 10)  # two legs, one of them joint
+    # recurrence: both agents in their zones from step 7 on, every later step accepting
+    np.testing.assert_array_equal(table.steps[0, 3], 40)
+    np.testing.assert_array_equal(table.num_accepting[0, 3], 40 - 7 + 1)
+
+
+def test_agents_without_a_part_hold_still():
+    dots = _DotWorld()
+    task = TaskEnv(SystemWorld(dots), compile_system_specs(["F yellow_0 & G !green_1"], dots))
+    moved = lambda agent_params, obs, goal, key: jnp.ones(2)  # every agent asked to move
+    states, alive = record_episodes(make_coordinator(moved, dots), task, dots.default_params,
+                                    jax.random.split(jax.random.key(0), 1),
+                                    jnp.zeros(1, jnp.int32), horizon=5)
+    xy = np.asarray(states.env_state.xy[0])  # [T + 1, N, 2]
+    assert bool(alive[0].all())
+    np.testing.assert_allclose(xy[-1, 0], [5 * 0.25 / np.sqrt(2)] * 2, rtol=1e-5)
+    np.testing.assert_array_equal(xy[:, 1], 0.0)
+
+
+def test_the_coordinator_traces_through_the_task_loop_on_the_mjx_world(world):
     env, params, *_ = world
-    calls = []
+    task = TaskEnv(SystemWorld(env), compile_system_specs(["F(blue_0 & blue_1)"], env))
+    seen = []
 
     def agent_policy(agent_params, obs, goal, key):
-        calls.append(jax.tree.map(jnp.shape, obs))
-        return jnp.asarray([1.0, 0.5]) * agent_params
+        seen.append(jax.tree.map(jnp.shape, obs))
+        return jnp.zeros(2)
 
-    specs = compile_system_specs(["F yellow_0 & G !green_1"], env)
-    task = TaskEnv(SystemWorld(env), specs)
     policy = make_coordinator(agent_policy, env)
-    states, alive = record_episodes(policy, task, params.replace(max_steps=8),
-                                    jax.random.split(jax.random.key(3), 1), jnp.zeros(1, jnp.int32),
-                                    policy_params=jnp.float32(1.0), horizon=8)
-    assert calls[0] == {"ap": (4, 16), "ego": (16,)}  # one agent's single-agent observation
-    xy = np.asarray(states.env_state.agents.physics.agent_pos[0, :, :, :2])  # [T + 1, N, 2]
-    assert bool(alive[0, 1:].all())
-    assert np.linalg.norm(xy[-1, 0] - xy[0, 0]) > 1e-3  # agent 0 reaches for yellow
-    np.testing.assert_allclose(xy[-1, 1], xy[0, 1], atol=1e-6)  # agent 1 idle: zero action
+
+    def one_step(key):  # shapes only: no MJX compile on the CPU
+        obs, state = task.reset(key, params)
+        carry = policy.init(None, obs, state, key)
+        (action, slot), carry = policy.apply(None, obs, state, carry, key)
+        out = task.step_task(key, state, action, params, slot)
+        return action, out[3], out[4], policy.aborted(carry)
+
+    action, terminated, truncated, aborted = jax.eval_shape(one_step, jax.random.key(0))
+    assert seen[0] == {"ap": (4, 16), "ego": (16,)}  # one agent's single-agent observation
+    assert (action.shape, action.dtype) == ((2, 2), jnp.float32)
+    assert terminated.shape == truncated.shape == aborted.shape == ()
