@@ -1,0 +1,340 @@
+"""LTL2Action (Vaezipoor et al., ICML'21): policies conditioned on the progressed LTL formula.
+
+The task loop runs a `tasks.progression.ProgressionSource`: each episode draws a formula from a
+bank sampled by the original's training distribution (LetterWorld `Eventually_1_5_1_4`, ZoneEnv
+`Until_1_2_1_1`), and every label progresses it; +1 and the end of the episode when it progresses
+to true, -1 and the end when it progresses to false. The network reads the current formula's
+syntax tree through a relational GCN (`RGCNEncoder`: 8 rounds of one shared relational
+convolution over 4 edge types, hidden 32, readout at the root, 32-d embedding), concatenated with
+the observation embedding, into an actor [64, 64, 64] ReLU and a critic [64, 64] Tanh. Dense
+layers start as the original's: normal weights with each unit's weight vector of unit norm,
+zero biases. At test time (`make_policy`) the agent progresses the evaluated formula itself.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+from typing import Any, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from specrl_jax import automata, specs
+from specrl_jax.baselines.encoders import ImageCNN, check_kinds, obs_parts
+from specrl_jax.baselines.ppo.networks import Categorical, GaussianHead, LetterCNN, PolicyOutput
+from specrl_jax.baselines.ppo.train import PPOConfig
+from specrl_jax.baselines.train_env import TaskTrainEnv
+from specrl_jax.tasks import StatefulPolicy, TaskEnv
+from specrl_jax.tasks.progression import (
+    NUM_EDGE_TYPES,
+    ProgressionBank,
+    ProgressionSource,
+    build_bank,
+    num_features,
+    step_state,
+)
+
+#: the original's training formula distribution per world family
+SAMPLERS = {"letter": "Eventually_1_5_1_4", "zone": "Until_1_2_1_1", "arm": "Until_1_2_1_1"}
+#: the suites whose formulas the test-time agent recognises unless told otherwise
+DEFAULT_SUITES = ("letter/finite/ind", "letter/finite/ood", "letter/infinite/rsp",
+                  "letter/infinite/rec", "zone/finite/ind", "zone/finite/ood",
+                  "zone/infinite/rsp", "zone/infinite/rec", "zone/infinite/per")
+
+
+def unit_rows(key: jax.Array, shape: Sequence[int], dtype: Any = jnp.float32) -> jax.Array:
+    """The original's `init_params`: N(0, 1) weights, each output unit's vector (a column of a
+    flax kernel [in, out]) scaled to unit L2 norm."""
+    w = jax.random.normal(key, shape, dtype)
+    return w / jnp.linalg.norm(w, axis=0, keepdims=True)
+
+
+def _dense(features: int) -> nn.Dense:
+    return nn.Dense(features, kernel_init=unit_rows)
+
+
+class FormulaObs(NamedTuple):
+    """What the LTL2Action network reads (one env; leading batch axes allowed): the world
+    observation as encoder parts and the progressed formula's syntax tree (see
+    `tasks.progression.ProgressionBank`): `tokens` int16[N] (-1 padding), `parent` int16[N]
+    (-1: root or padding), `edge` int8[N]."""
+
+    parts: dict
+    tokens: jax.Array
+    parent: jax.Array
+    edge: jax.Array
+
+
+class RGCNEncoder(nn.Module):
+    """LTL2Action's `RGCN_8x32_ROOT_SHARED` with segment sums.
+
+    `h0 = W_in x` (x one-hot node tokens); `num_layers` times the one shared relational
+    convolution `h_i <- tanh(sum_r sum_{j in N_r(i)} W_r [h_j, h0_j] + b)` over the self edge
+    (type 0) and the child -> parent edges (types 1-3); the root's hidden, through a Dense layer.
+    Node order does not matter: only the parent links and edge types do.
+    """
+
+    features: int
+    hidden: int = 32
+    num_layers: int = 8
+    out: int = 32
+
+    @nn.compact
+    def __call__(self, tokens: jax.Array, parent: jax.Array, edge: jax.Array) -> jax.Array:
+        batch, num_nodes = tokens.shape[:-1], tokens.shape[-1]
+        tokens = tokens.reshape(-1, num_nodes).astype(jnp.int32)
+        parent = parent.reshape(-1, num_nodes).astype(jnp.int32)
+        edge = edge.reshape(-1, num_nodes).astype(jnp.int32)
+        num_graphs = tokens.shape[0]
+        mask = tokens >= 0
+        h0 = _dense(self.hidden)(jax.nn.one_hot(tokens, self.features))  # [G, N, H]
+        weight = self.param("relation_kernel",
+                            nn.initializers.variance_scaling(2.0, "fan_avg", "uniform",
+                                                             in_axis=-2, out_axis=-1),
+                            (NUM_EDGE_TYPES, 2 * self.hidden, self.hidden))
+        bias = self.param("relation_bias", nn.initializers.zeros_init(), (self.hidden,))
+        total = num_graphs * num_nodes
+        offsets = (jnp.arange(num_graphs) * num_nodes)[:, None]
+        receiver = jnp.where(mask & (parent >= 0), parent + offsets, total).reshape(-1)
+        edge_flat = edge.reshape(-1)
+        def convolve(_, h):
+            x = jnp.concatenate([h, h0], axis=-1).reshape(total, 2 * self.hidden)
+            by_type = jnp.einsum("nd,rdo->nro", x, weight)  # [G*N, R, H]
+            own = by_type[:, 0]
+            message = jnp.take_along_axis(by_type, edge_flat[:, None, None], axis=1)[:, 0]
+            incoming = jax.ops.segment_sum(message, receiver, num_segments=total)
+            h = jnp.tanh(own + incoming + bias).reshape(num_graphs, num_nodes, self.hidden)
+            return jnp.where(mask[..., None], h, 0.0)
+
+        # one shared convolution: a loop keeps the compiled program one layer long
+        h = jax.lax.fori_loop(0, self.num_layers, convolve, h0)
+        is_root = mask & (parent < 0)
+        root = jnp.sum(jnp.where(is_root[..., None], h, 0.0), axis=-2)
+        return _dense(self.out)(root).reshape(*batch, self.out)
+
+
+class LTL2ActionNetwork(nn.Module):
+    """Observation encoder (grid CNN, vector MLP [128, 64] ReLU, image CNN) and the R-GCN formula
+    embedding, concatenated; actor [64, 64, 64] ReLU then logits (or a Gaussian with Tanh mean
+    and state-dependent std); critic [64, 64] Tanh."""
+
+    num_actions: int  # discrete actions, or the action dimension when `continuous`
+    propositions: tuple[str, ...]
+    continuous: bool = False
+
+    @nn.compact
+    def __call__(self, obs: FormulaObs) -> PolicyOutput:
+        parts, out = obs.parts, []
+        if "grid" in parts:
+            out.append(LetterCNN()(parts["grid"]))
+        if "vector" in parts:
+            out.append(nn.relu(_dense(64)(nn.relu(_dense(128)(parts["vector"])))))
+        if "image" in parts:
+            out.append(ImageCNN()(parts["image"]))
+        formula = RGCNEncoder(num_features(len(self.propositions)))(obs.tokens, obs.parent, obs.edge)
+        emb = jnp.concatenate([*out, formula], axis=-1)
+        hidden = emb
+        for width in (64, 64, 64):
+            hidden = nn.relu(_dense(width)(hidden))
+        if self.continuous:
+            pi = GaussianHead(self.num_actions)(hidden)
+        else:
+            pi = Categorical(_dense(self.num_actions)(hidden))
+        value = _dense(1)(nn.tanh(_dense(64)(nn.tanh(_dense(64)(emb)))))[..., 0]
+        zeros = jnp.zeros_like(value)
+        return PolicyOutput(pi, value, zeros, zeros)
+
+
+def network_for(world: Any) -> LTL2ActionNetwork:
+    """The LTL2Action network for a world's action space and propositions."""
+    check_kinds(world.obs_kinds)
+    space, props = world.action_space, tuple(world.propositions)
+    if hasattr(space, "n"):
+        return LTL2ActionNetwork(int(space.n), props)
+    return LTL2ActionNetwork(int(space.shape[0]), props, continuous=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class LTL2Action:
+    """The LTL2Action method for the shared trainer: the task loop over a progression source."""
+
+    env: TaskTrainEnv
+    network: LTL2ActionNetwork
+
+    @property
+    def bank(self) -> ProgressionBank:
+        return self.env.task.source.bank
+
+    def init_task_params(self) -> None:
+        return None
+
+    def update_task_params(self, task_params: Any, stats: dict[str, jax.Array]) -> Any:
+        return task_params
+
+
+def training_formulas(propositions: Sequence[str], family: str = "letter", num_formulas: int = 1024,
+                      seed: int = 0) -> list[str]:
+    """`num_formulas` draws of the original's training sampler for `family` (seeded, host)."""
+    if family not in SAMPLERS:
+        raise ValueError(f"unknown world family {family!r}; accepted: {', '.join(SAMPLERS)}")
+    if num_formulas < 1:
+        raise ValueError(f"num_formulas must be >= 1, got {num_formulas}")
+    sampler = specs.ltl2action_sampler(SAMPLERS[family])
+    rng = np.random.default_rng(seed)
+    return [sampler(rng, tuple(propositions)) for _ in range(num_formulas)]
+
+
+def observe_formula(bank: ProgressionBank, obs_kinds: Mapping[str, str]):
+    """`observe(world_obs, task_state) -> FormulaObs` for a progression task loop."""
+    kinds = dict(obs_kinds)
+
+    def observe(obs, state):
+        return FormulaObs(obs_parts(obs, kinds), *bank.graph(state.task.state))
+
+    return observe
+
+
+_BANKS: dict[tuple, ProgressionBank] = {}
+
+
+def make_method(world: Any, params: Any, family: str = "letter", formulas: Sequence[str] | None = None,
+                num_formulas: int = 1024, seed: int = 0) -> LTL2Action:
+    """LTL2Action on any single-agent world: a bank of `num_formulas` formulas from `family`'s
+    training sampler (or the given `formulas`), progressed on the device."""
+    network = network_for(world)
+    if formulas is None:
+        formulas = training_formulas(world.propositions, family, num_formulas, seed)
+    alphabet = np.asarray(world.alphabet, bool)
+    key = (tuple(formulas), tuple(world.propositions), alphabet.tobytes(), alphabet.shape)
+    if key not in _BANKS:  # training, evaluation and loading each build the method once
+        _BANKS[key] = build_bank(formulas, world.propositions, alphabet)
+    bank = _BANKS[key]
+    source = ProgressionSource(bank, world.alphabet)
+
+    def signals(info):
+        reward = info["success"].astype(jnp.float32) - info["violation"].astype(jnp.float32)
+        return reward, jnp.zeros((), jnp.float32), jnp.zeros((), bool)
+
+    task = TaskEnv(world, source, observe_formula(bank, world.obs_kinds))
+    return LTL2Action(TaskTrainEnv(task, params, signals), network)
+
+
+def summarise(row: dict[str, float]) -> dict[str, float]:
+    episodes = max(row["episodes"], 1.0)
+    return {**row, "success_rate": row["successes"] / episodes, "violation_rate": row["violations"] / episodes}
+
+
+def ppo_config(world: str = "letter", **overrides: Any) -> PPOConfig:
+    """LTL2Action's settings (`src/README.md`): LetterWorld 16 x 128, minibatch 256, 4 epochs,
+    gamma 0.94, entropy 0.01; ZoneEnv 16 x 4096, minibatch 2048, 10 epochs, gamma 0.998, entropy
+    0.003; lr 3e-4, GAE 0.95, clip 0.2. The arm (no original setting) takes ZoneEnv's with
+    gamma 0.99 and 16 x 1024."""
+    base = {
+        "letter": {"num_envs": 16, "num_steps": 128, "num_minibatches": 8, "update_epochs": 4,
+                   "gamma": 0.94, "ent_coef": 0.01},
+        "zone": {"num_envs": 16, "num_steps": 4096, "num_minibatches": 32, "update_epochs": 10,
+                 "gamma": 0.998, "ent_coef": 0.003},
+        "arm": {"num_envs": 16, "num_steps": 1024, "num_minibatches": 8, "update_epochs": 10,
+                "gamma": 0.99, "ent_coef": 0.003},
+    }[world]
+    common = {"loss": "ppo", "vf_coef": 0.5, "gae_lambda": 0.95, "lr": 3e-4}
+    return PPOConfig(**{**common, **base, **overrides})
+
+
+# ---------------------------------------------------------------------------------------------
+# Test time: the agent progresses the evaluated formula itself
+
+
+class ProgressionCarry(NamedTuple):
+    state: jax.Array  # int32[], formula state in the policy's own bank
+    time: jax.Array  # int32[], the task step the state describes
+
+
+def _same_automaton(spec: Any, stacked: Any, k: int) -> bool:
+    """The compiled spec `spec` equals entry `k` of a padded stack on its own states."""
+    num_states, num_symbols = np.asarray(spec.delta).shape
+    delta = np.asarray(stacked.delta[k])
+    if delta.shape[1] != num_symbols or delta.shape[0] < num_states:
+        return False
+    fields = ("delta", "accepting", "success", "violation")
+    return (int(stacked.init[k]) == int(spec.init) and bool(stacked.is_finite[k]) == bool(spec.is_finite)
+            and all(np.array_equal(np.asarray(getattr(stacked, f)[k])[:num_states], np.asarray(getattr(spec, f)))
+                    for f in fields))
+
+
+def match_formulas(stacked: Any, candidates: Sequence[str], propositions: Sequence[str],
+                   alphabet: np.ndarray) -> list[str]:
+    """The formula text of each spec of a stacked bank, found among `candidates` by compiling
+    them (Spot, cached) and comparing automata; candidates are tried from the one after the last
+    match, so banks stacked in candidate order match in one pass.
+
+    Raises:
+        ValueError: a spec that no candidate compiles to.
+    """
+    compiled: dict[str, Any] = {}
+    found, start = [], 0
+    for k in range(int(stacked.delta.shape[0])):
+        for offset in range(len(candidates)):
+            i = (start + offset) % len(candidates)
+            text = candidates[i]
+            if text not in compiled:
+                compiled[text] = automata.compile_spec(text, propositions, alphabet=alphabet)
+            if _same_automaton(compiled[text], stacked, k):
+                found.append(text)
+                start = i + 1
+                break
+        else:
+            raise ValueError(
+                f"spec {k} of the evaluated bank is none of the {len(candidates)} candidate "
+                "formulas; give the evaluated formulas to make_policy (formulas=... or suites=...)")
+    return found
+
+
+def make_policy(network: LTL2ActionNetwork, alphabet: jax.Array, obs_kinds: Mapping[str, str],
+                deterministic: bool = False, formulas: Sequence[str] | None = None,
+                suites: Sequence[str] | None = None) -> StatefulPolicy:
+    """LTL2Action's test-time agent as a `StatefulPolicy` for `specrl_jax.eval.evaluate`.
+
+    The task loop runs an `AutomatonSource` over the evaluated specs (for the success and
+    violation flags); the agent recognises each spec's formula among `formulas` (default: those
+    of `suites`, default `DEFAULT_SUITES` over the world's propositions), builds their
+    progression bank once per evaluated bank (at trace time) and carries the progressed formula,
+    stepping it on every new label. Actions are sampled, or the mode where `deterministic`.
+    """
+    alphabet_np = np.asarray(alphabet, bool)
+    props = network.propositions
+    kinds = dict(obs_kinds)
+    if formulas is None:
+        names = [s for s in (suites or DEFAULT_SUITES)
+                 if set(specs.suite_info(s).propositions) <= set(props)]
+        formulas = [f for s in names for f in specs.suite(s)]
+    candidates = list(dict.fromkeys(formulas))
+    if not candidates:
+        raise ValueError(f"no candidate formulas over the propositions {props}")
+    banks: dict[Any, tuple[ProgressionBank, jax.Array]] = {}
+
+    def bank_for(task_state) -> ProgressionBank:
+        spec_bank = task_state.task.bank
+        if spec_bank not in banks:
+            # host work at trace time: compile and compare concrete arrays, stage nothing
+            with jax.ensure_compile_time_eval():
+                texts = match_formulas(jax.device_get(spec_bank.specs), candidates, props, alphabet_np)
+                banks[spec_bank] = build_bank(texts, props, alphabet_np)
+        return banks[spec_bank]
+
+    def init(params, obs, task_state, key):
+        bank = bank_for(task_state)
+        return ProgressionCarry(bank.roots[task_state.spec_index], task_state.time)
+
+    def apply(params, obs, task_state, carry: ProgressionCarry, key):
+        bank = bank_for(task_state)
+        stepped = step_state(bank, carry.state, task_state.propositions)
+        state = jnp.where(task_state.time != carry.time, stepped, carry.state)
+        out = network.apply(params, FormulaObs(obs_parts(obs, kinds), *bank.graph(state)))
+        action = out.pi.mode() if deterministic else out.pi.sample(key)
+        return action, ProgressionCarry(state, task_state.time)
+
+    return StatefulPolicy(init, apply)

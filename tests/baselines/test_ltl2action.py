@@ -1,0 +1,152 @@
+"""LTL2Action: the R-GCN formula encoder (against a numpy transcription, node permutations,
+edge types), learning a tiny world through the task loop, and the test-time agent's own
+progression against the task loop's automaton flags."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import spot
+
+from specrl_jax import automata
+from specrl_jax.baselines import ltl2action
+from specrl_jax.baselines.encoders import obs_parts
+from specrl_jax.baselines.ppo import make_train
+from specrl_jax.envs.letter import LetterConfig, make_letter_world
+from specrl_jax.tasks import TaskEnv
+from specrl_jax.tasks.progression import EDGE_ARG1, EDGE_ARG2, build_bank, formula_graph, num_features
+
+PROPS = tuple("abcdefghijkl")
+
+
+def _graph(text, pad=12):
+    tokens, parent, edge = (np.asarray(x) for x in formula_graph(spot.formula(text), PROPS))
+    padding = pad - len(tokens)
+    return (np.pad(tokens, (0, padding), constant_values=-1), np.pad(parent, (0, padding), constant_values=-1),
+            np.pad(edge, (0, padding)))
+
+
+def _encoder():
+    encoder = ltl2action.RGCNEncoder(num_features(len(PROPS)))
+    tokens, parent, edge = _graph("!a U (b & F c)")
+    params = encoder.init(jax.random.key(0), tokens, parent, edge)
+    return encoder, params
+
+
+def _numpy_rgcn(params, tokens, parent, edge, features, layers=8):
+    """The R-GCN of LTL2Action written out per node: h_i <- tanh(W_0 x_i + sum over children
+    j of W_{type(j)} x_j + b), x = [h, h0]; readout at the root."""
+    p = jax.tree.map(np.asarray, params["params"])
+    live = [i for i in range(len(tokens)) if tokens[i] >= 0]
+    onehot = np.eye(features)[tokens[live]]
+    h0 = {i: row for i, row in zip(live, onehot @ p["Dense_0"]["kernel"] + p["Dense_0"]["bias"])}
+    h = dict(h0)
+    weight, bias = p["relation_kernel"], p["relation_bias"]
+    for _ in range(layers):
+        x = {i: np.concatenate([h[i], h0[i]]) for i in live}
+        h = {i: np.tanh(x[i] @ weight[0] + sum(x[j] @ weight[edge[j]] for j in live if parent[j] == i) + bias)
+             for i in live}
+    root = next(i for i in live if parent[i] < 0)
+    return h[root] @ p["Dense_1"]["kernel"] + p["Dense_1"]["bias"]
+
+
+def test_rgcn_matches_a_per_node_numpy_transcription():
+    encoder, params = _encoder()
+    for text in ("!a U (b & F c)", "F(a & F(b | c))", "G !d & F e"):
+        tokens, parent, edge = _graph(text)
+        got = encoder.apply(params, tokens, parent, edge)
+        want = _numpy_rgcn(params, tokens, parent, edge, num_features(len(PROPS)))
+        np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
+
+
+def test_rgcn_is_invariant_to_node_order_and_padding_but_not_to_edge_types():
+    encoder, params = _encoder()
+    tokens, parent, edge = _graph("!a U (b & F c)")
+    base = np.asarray(encoder.apply(params, tokens, parent, edge))
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        order = rng.permutation(len(tokens))  # new position -> old node (padding moves too)
+        where = np.argsort(order)  # old node -> new position
+        new_parent = np.where(parent[order] >= 0, where[np.maximum(parent[order], 0)], -1)
+        got = encoder.apply(params, tokens[order], new_parent, edge[order])
+        np.testing.assert_allclose(got, base, rtol=1e-5, atol=1e-5)
+    padded = encoder.apply(params, *(np.pad(x, (0, 7), constant_values=-1 if i < 2 else 0)
+                                      for i, x in enumerate((tokens, parent, edge))))
+    np.testing.assert_allclose(padded, base, rtol=1e-5, atol=1e-5)
+    swapped = edge.copy()  # the until's operands exchanged: !a U X becomes X U !a
+    swapped[(parent == 0) & (edge == EDGE_ARG1)] = EDGE_ARG2
+    swapped[(parent == 0) & (edge == EDGE_ARG2)] = EDGE_ARG1
+    swapped_emb = np.asarray(encoder.apply(params, tokens, parent, swapped))
+    assert np.abs(swapped_emb - base).max() > 1e-3
+    # a batch of graphs gives each graph's own embedding
+    other = _graph("F(a & F(b | c))")
+    batch = encoder.apply(params, *(np.stack([x, y]) for x, y in zip((tokens, parent, edge), other)))
+    np.testing.assert_allclose(batch[0], base, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(batch[1], encoder.apply(params, *other), rtol=1e-5, atol=1e-5)
+
+
+def _tiny_world(max_steps=6):
+    # 5x5 torus, one 'a' and one 'b': the formula says which letter to reach (and which to avoid)
+    world, params = make_letter_world(LetterConfig(grid_size=5, letters=("a", "b"), counts=1),
+                                      max_steps=max_steps)
+    return world, world.with_map_bank(jax.random.key(0), params, num_maps=64)
+
+
+TINY_FORMULAS = ["F a", "F b", "!a U b", "!b U a"]
+
+
+def test_ltl2action_learns_formulas_on_a_tiny_letter_world_through_the_task_loop():
+    world, params = _tiny_world()
+    method = ltl2action.make_method(world, params, formulas=TINY_FORMULAS)
+    updates = 50
+    cfg = ltl2action.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * updates,
+                                update_epochs=4, num_minibatches=2)
+    _, metrics = jax.jit(make_train(cfg, method))(jax.random.key(1))
+    rows = [ltl2action.summarise({k: float(v[i]) for k, v in metrics.items()}) for i in range(updates)]
+    first = np.mean([r["success_rate"] for r in rows[:5]])
+    last = np.mean([r["success_rate"] for r in rows[-5:]])
+    assert first < 0.4 and last > 0.6, (first, last)
+
+
+def test_test_time_agent_progresses_the_evaluated_formula_itself():
+    """The agent recognises each evaluated spec's formula, and its carried progression is true
+    exactly when the task loop's automaton reports success, false exactly on violation."""
+    world, params = _tiny_world(max_steps=30)
+    formulas = ["!b U a", "F(a & F b)", "!a U b"]
+    compiled = automata.stack([automata.compile_spec(f, world.propositions, alphabet=world.alphabet)
+                               for f in formulas])
+    candidates = ["F a", "F b"] + list(reversed(formulas))
+    assert ltl2action.match_formulas(compiled, candidates, world.propositions,
+                                     np.asarray(world.alphabet)) == formulas
+    network = ltl2action.network_for(world)
+    policy = ltl2action.make_policy(network, world.alphabet, world.obs_kinds, formulas=candidates)
+    task = TaskEnv(world, compiled)
+    bank = build_bank(formulas, world.propositions, world.alphabet)  # same formulas, same order
+    obs, state = task.reset(jax.random.key(3), params, 0)
+    first = ltl2action.FormulaObs(obs_parts(obs, world.obs_kinds), *bank.graph(jnp.int32(0)))
+    net_params = network.init(jax.random.key(0), jax.tree.map(lambda x: x[None], first))
+
+    def episode(key, index):
+        key_reset, key_loop = jax.random.split(key)
+        obs, state = task.reset(key_reset, params, index)
+        carry = policy.init(net_params, obs, state, key_loop)
+
+        def body(loop, t):
+            obs, state, carry = loop
+            key_policy, key_step = jax.random.split(jax.random.fold_in(key_loop, t))
+            action, carry = policy.apply(net_params, obs, state, carry, key_policy)
+            obs, state, _, _, _, _ = task.step_task(key_step, state, action, params)
+            _, seen = policy.apply(net_params, obs, state, carry, key_policy)  # the next step's view
+            return (obs, state, carry), (seen.state, state.success, state.violation)
+
+        _, trace = jax.lax.scan(body, (obs, state, carry), jnp.arange(30))
+        return trace
+
+    run = jax.jit(jax.vmap(episode, in_axes=(0, None)))
+    keys = jax.random.split(jax.random.key(4), 24)
+    ended = 0
+    for index in range(len(formulas)):
+        states, success, violation = (np.asarray(x) for x in run(keys, index))
+        np.testing.assert_array_equal(np.asarray(bank.is_true)[states], success)
+        np.testing.assert_array_equal(np.asarray(bank.is_false)[states], violation)
+        ended += int(success[:, -1].sum() + violation[:, -1].sum())
+    assert ended > 0
