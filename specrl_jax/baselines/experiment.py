@@ -9,6 +9,7 @@ mean and std over the seeds.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import json
 import time
 from collections.abc import Callable, Sequence
@@ -20,12 +21,12 @@ import jax.numpy as jnp
 import numpy as np
 from flax import serialization
 
-from specrl_jax.baselines import deepltl, genz, runs
-from specrl_jax.baselines.ppo import make_train
+from specrl_jax.baselines import deepltl, genz, ltl2action, runs
+from specrl_jax.baselines.ppo import env_mesh, make_train
 from specrl_jax.envs.registry import make
 
-METHODS = {"genz": genz, "deepltl": deepltl}
-METHOD_NAMES = {"genz": "GenZ-LTL", "deepltl": "DeepLTL"}
+METHODS = {"genz": genz, "deepltl": deepltl, "ltl2action": ltl2action}
+METHOD_NAMES = {"genz": "GenZ-LTL", "deepltl": "DeepLTL", "ltl2action": "LTL2Action"}
 LETTER_SUITES = ("letter/finite/ind", "letter/finite/ood", "letter/infinite/rsp", "letter/infinite/rec")
 SUCCESS_LEVELS = (0.5, 0.8, 0.9, 0.95, 0.98)
 
@@ -72,9 +73,12 @@ def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int
 def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str, Any], num_seeds: int = 1,
           seed: int = 0, map_bank: int | None = 65536, chunk_updates: int = 10,
           log: Callable[[str], None] = print, max_wall_s: float | None = None,
-          restart: bool = False) -> tuple[Any, dict[str, Any]]:
+          restart: bool = False, devices: Sequence[Any] | None = None) -> tuple[Any, dict[str, Any]]:
     """Train `num_seeds` runs; returns `(params with a leading seed axis, training summary)`.
-    `restart` discards a run directory's earlier run (else it is resumed if its settings match)."""
+    `restart` discards a run directory's earlier run (else it is resumed if its settings match).
+    The env batch is sharded over `devices` (default: every local device; `num_envs` must
+    divide by their count), parameters replicated; the result does not depend on the count
+    beyond floating-point reduction order."""
     key_bank, key_train = jax.random.split(jax.random.key(seed))
     start = time.perf_counter()
     if map_bank and family(env_id) == "letter":
@@ -82,7 +86,8 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     _world, _params, method_obj, config = build(method, env_id, ppo_overrides, map_bank, key_bank)
     setup = time.perf_counter() - start
     log(f"set up {env_id} in {setup:.1f}s; compiling the training step (the first chunk includes it)")
-    trainer = make_train(config, method_obj)
+    mesh = env_mesh(list(devices) if devices is not None else None)
+    trainer = make_train(config, method_obj, mesh)
     start = time.perf_counter()
     runner = runs.train_in_run_dir(
         trainer, key_train, run_dir, chunk_updates, num_seeds,
@@ -97,6 +102,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         "method": method, "env": env_id, "num_seeds": num_seeds, "ppo": dataclasses.asdict(config),
         "env_steps_per_seed": rows[-1]["env_steps"] if rows else 0,
         "complete": int(runner.update[0]) >= config.num_updates,
+        "devices": int(mesh.size),  # the env batch was sharded over this many devices
         "setup_s": setup,  # env and map bank, before training
         "wall_s_this_session": wall,
         # every session's steps over every session's training time (rows' clock spans resumes)
@@ -139,6 +145,8 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
     world, env_params = make(env_id)
     world_family = family(env_id)
     method_obj = method_module(method).make_method(world, env_params, world_family)
+    if "suites" in inspect.signature(method_module(method).make_policy).parameters:
+        policy_options.setdefault("suites", tuple(suites))  # LTL2Action progresses their formulas
     policy = make_policy(method, world, method_obj, deterministic, world_family, **policy_options)
     num_seeds = jax.tree.leaves(params)[0].shape[0]
     return evaluate_suites(

@@ -18,6 +18,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from specrl_jax import automata
 from specrl_jax.envs.wrappers import select_tree
@@ -154,7 +155,8 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
 
 def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, params: Any,
                    episodes_per_seed: int, horizon: int | None = None,
-                   sequential_seeds: bool = False, original: Any = None
+                   sequential_seeds: bool = False, original: Any = None,
+                   devices: Sequence[Any] | None = None
                    ) -> Callable[[Any, jax.Array], EpisodeTable]:
     """A jitted `fn(policy_params, seeds uint32[num_seeds]) -> EpisodeTable` (device arrays,
     fields `[num_seeds, K, episodes_per_seed]`); compile once, call many times.
@@ -163,10 +165,17 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
     dividing peak memory by `num_seeds`, for runs too large for one device. `original`: the
     original's automata of the K specs (`original_ldba.stack_ldbas`), counted beside ours
     (`EpisodeTable.num_accepting_original`). Memory holds each episode's running state only,
-    whatever the horizon."""
+    whatever the horizon.
+
+    The episodes of a (seed, spec) are sharded over `devices` (default: every local device),
+    padded to a multiple of their count; an episode's outcome depends on its seed and index
+    only, so the table is the same on any number of devices."""
     policy = as_stateful(policy)
     horizon = int(params.max_steps) if horizon is None else int(horizon)
     num_specs = task.num_specs
+    mesh = Mesh(np.asarray(list(devices) if devices is not None else jax.local_devices()), ("env",))
+    padded = -(-episodes_per_seed // mesh.size) * mesh.size
+    on_devices = NamedSharding(mesh, PartitionSpec("env"))
 
     def episode(policy_params, seed, spec_index, episode_index):
         key = jax.random.fold_in(jax.random.key(seed), episode_index)
@@ -179,10 +188,13 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
 
     @jax.jit
     def evaluator(policy_params, seeds):
-        def one_seed(seed):
-            return per_spec(policy_params, seed, jnp.arange(num_specs), jnp.arange(episodes_per_seed))
+        episodes = jax.lax.with_sharding_constraint(jnp.arange(padded), on_devices)
 
-        return jax.lax.map(one_seed, seeds) if sequential_seeds else jax.vmap(one_seed)(seeds)
+        def one_seed(seed):
+            return per_spec(policy_params, seed, jnp.arange(num_specs), episodes)
+
+        table = jax.lax.map(one_seed, seeds) if sequential_seeds else jax.vmap(one_seed)(seeds)
+        return jax.tree.map(lambda x: x[:, :, :episodes_per_seed], table)
 
     return evaluator
 

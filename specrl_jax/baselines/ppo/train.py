@@ -105,7 +105,11 @@ class Trainer:
 
     def __init__(self, config: PPOConfig, method: Method, mesh: Mesh | None = None):
         if mesh is not None and config.num_envs % mesh.size:
-            raise ValueError(f"num_envs={config.num_envs} is not divisible by the {mesh.size} devices")
+            raise ValueError(
+                f"num_envs={config.num_envs} is not divisible by the {mesh.size} devices of the "
+                f"mesh; use a multiple of {mesh.size} (e.g. --num-envs "
+                f"{-(-config.num_envs // mesh.size) * mesh.size}) or fewer devices"
+            )
         self.config, self.method, self.mesh = config, method, mesh
         self.loss_fn = losses.LOSSES[config.loss]
         self.optimizer = optax.chain(
@@ -236,7 +240,8 @@ def make_train(config: PPOConfig, method: Method, mesh: Mesh | None = None) -> T
 
 
 def env_mesh(devices: list | None = None) -> Mesh:
-    """A one-axis mesh named "env" over `devices` (default: all local devices)."""
+    """A one-axis mesh named "env" over `devices` (default: all local devices; after
+    `jax.distributed.initialize`, pass `jax.devices()` for every device of every host)."""
     import numpy as np
 
     return Mesh(np.asarray(devices if devices is not None else jax.local_devices()), ("env",))
