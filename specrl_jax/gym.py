@@ -32,7 +32,7 @@ from gymnasium.vector import AutoresetMode
 import specrl_jax
 from specrl_jax.envs import multi as multi_zone
 from specrl_jax.envs import spaces
-from specrl_jax.envs.wrappers import AutoReset, BatchedEnv
+from specrl_jax.envs.wrappers import batch
 
 
 #: set in a child forked from a process whose JAX backends had started
@@ -204,7 +204,7 @@ class GymVectorEnv(gymnasium.vector.VectorEnv):
             self.single_observation_space, num_envs
         )
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, num_envs)
-        batched = BatchedEnv(AutoReset(self.env), num_envs)
+        batched = batch(self.env, num_envs)
         original = jax.vmap(self.env.original_observation)
         self._key: jax.Array | None = None
         self._state: Any = None

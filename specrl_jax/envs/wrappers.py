@@ -146,6 +146,54 @@ class BatchedEnv(Wrapper):
         return jax.vmap(self.env.action_space.sample)(keys)
 
 
-def batch(env: Any, num_envs: int, auto_reset: bool = True) -> BatchedEnv:
-    """The one-liner for mass simulation: `num_envs` auto-resetting copies of `env`."""
-    return BatchedEnv(AutoReset(env) if auto_reset else env, num_envs)
+class BatchedAutoReset(BatchedEnv):
+    """`num_envs` copies of an env, auto-resetting, with resets computed for finished worlds only.
+
+    Semantics are `BatchedEnv(AutoReset(env))`'s: the same step, every reset a fresh exact draw,
+    `info["final_observation"]` and `info["final_info"]`. Cost differs: an exact reset (e.g. a
+    rejection-sampled LetterWorld map) under `vmap` costs as much as its slowest lane, and the
+    plain wrapper computes one per world at every step. Here a step computes `resets_per_step`
+    (default B / 32) fresh resets and scatters them into the worlds that finished; a step where
+    more worlds finish falls back to a reset for every world (`lax.cond`; under an outer `vmap`
+    both branches run).
+    """
+
+    def __init__(self, env: Any, num_envs: int, resets_per_step: int | None = None):
+        super().__init__(env, num_envs)
+        k = max(1, num_envs // 32) if resets_per_step is None else resets_per_step
+        if not isinstance(k, int) or not 1 <= k <= num_envs:
+            raise ValueError(f"resets_per_step must be an int in 1..{num_envs}, got {k!r}")
+        self.resets_per_step = k
+
+    def step(self, key: jax.Array, state: Any, action: jax.Array, params: Any = None) -> StepOut:
+        params = self.env.default_params if params is None else params
+        key_step, key_reset = jax.random.split(key)
+        obs, state, reward, terminated, truncated, info = super().step(
+            key_step, state, action, params)
+        done = terminated | truncated
+        info = {**info, "final_info": dict(info)}
+        reset = jax.vmap(self.env.reset, in_axes=(0, None))
+        num, k = self.num_envs, self.resets_per_step
+
+        def scatter_few(_):
+            (index,) = jnp.nonzero(done, size=k, fill_value=num)  # past the end: dropped
+            fresh = reset(jax.random.split(key_reset, k), params)
+            return jax.tree.map(lambda x, r: x.at[index].set(r, mode="drop"), (obs, state), fresh)
+
+        def reset_all(_):
+            fresh = reset(jax.random.split(key_reset, num), params)
+            return jax.tree.map(lambda r, x: jnp.where(done.reshape(-1, *[1] * (x.ndim - 1)), r, x),
+                                fresh, (obs, state))
+
+        new_obs, new_state = jax.lax.cond(jnp.sum(done) <= k, scatter_few, reset_all, None)
+        info["final_observation"] = obs
+        return new_obs, new_state, reward, terminated, truncated, info
+
+
+def batch(env: Any, num_envs: int, auto_reset: bool = True,
+          resets_per_step: int | None = None) -> BatchedEnv:
+    """The one-liner for mass simulation: `num_envs` auto-resetting copies of `env` (resets
+    computed for the finished worlds only, see `BatchedAutoReset`)."""
+    if not auto_reset:
+        return BatchedEnv(env, num_envs)
+    return BatchedAutoReset(env, num_envs, resets_per_step)
