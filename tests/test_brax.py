@@ -211,6 +211,7 @@ def test_brax_ppo_trains_and_evaluates_through_the_adapter():
     assert action.shape == (3, 2)
 
 
+@pytest.mark.slow  # MJX Point under Brax's trainer and evaluator: ~70 s on a 2-core CPU
 def test_the_example_runs_a_few_iterations_on_point(tmp_path):
     """examples/brax_ppo_point.py on PointLTL0-v0 at a tiny size: Brax PPO runs and writes its
     success-rate curve."""
