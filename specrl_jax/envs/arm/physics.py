@@ -60,14 +60,14 @@ def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: 
     want = (MOTOR_RATE * (target - qpos) - qvel) / h - free_accel  # needed extra acceleration
     tau = jnp.clip(mass @ want, -force_limit, force_limit)
     diag = jnp.diagonal(inverse)
-    num = tau.shape[0]
 
-    def update(k, tau):
-        i = k % num
-        residual = want[i] - inverse[i] @ tau
-        return tau.at[i].set(jnp.clip(tau[i] + residual / diag[i], -force_limit[i], force_limit[i]))
+    def sweep(_, tau):
+        for i in range(tau.shape[0]):  # rows in order, as Bullet's sequential impulses
+            residual = want[i] - inverse[i] @ tau
+            tau = tau.at[i].set(jnp.clip(tau[i] + residual / diag[i], -force_limit[i], force_limit[i]))
+        return tau
 
-    tau = jax.lax.fori_loop(0, sweeps * num, update, tau)
+    tau = jax.lax.fori_loop(0, sweeps, sweep, tau)
     return tau
 
 
