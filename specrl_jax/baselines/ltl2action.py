@@ -134,7 +134,8 @@ class LTL2ActionNetwork(nn.Module):
             out.append(nn.relu(_dense(64)(nn.relu(_dense(128)(parts["vector"])))))
         if "image" in parts:
             out.append(ImageCNN()(parts["image"]))
-        formula = RGCNEncoder(num_features(len(self.propositions)))(obs.tokens, obs.parent, obs.edge)
+        encoder = RGCNEncoder(num_features(len(self.propositions)))
+        formula = encoder(obs.tokens, obs.parent, obs.edge)
         emb = jnp.concatenate([*out, formula], axis=-1)
         hidden = emb
         for width in (64, 64, 64):
@@ -200,7 +201,8 @@ def observe_formula(bank: ProgressionBank, obs_kinds: Mapping[str, str]):
 _BANKS: dict[tuple, ProgressionBank] = {}
 
 
-def make_method(world: Any, params: Any, family: str = "letter", formulas: Sequence[str] | None = None,
+def make_method(world: Any, params: Any, family: str = "letter",
+                formulas: Sequence[str] | None = None,
                 num_formulas: int = 1024, seed: int = 0) -> LTL2Action:
     """LTL2Action on any single-agent world: a bank of `num_formulas` formulas from `family`'s
     training sampler (or the given `formulas`), progressed on the device."""
@@ -224,7 +226,8 @@ def make_method(world: Any, params: Any, family: str = "letter", formulas: Seque
 
 def summarise(row: dict[str, float]) -> dict[str, float]:
     episodes = max(row["episodes"], 1.0)
-    return {**row, "success_rate": row["successes"] / episodes, "violation_rate": row["violations"] / episodes}
+    return {**row, "success_rate": row["successes"] / episodes,
+            "violation_rate": row["violations"] / episodes}
 
 
 def ppo_config(world: str = "letter", **overrides: Any) -> PPOConfig:
@@ -260,9 +263,10 @@ def _same_automaton(spec: Any, stacked: Any, k: int) -> bool:
     if delta.shape[1] != num_symbols or delta.shape[0] < num_states:
         return False
     fields = ("delta", "accepting", "success", "violation")
-    return (int(stacked.init[k]) == int(spec.init) and bool(stacked.is_finite[k]) == bool(spec.is_finite)
-            and all(np.array_equal(np.asarray(getattr(stacked, f)[k])[:num_states], np.asarray(getattr(spec, f)))
-                    for f in fields))
+    same_fields = all(np.array_equal(np.asarray(getattr(stacked, f)[k])[:num_states],
+                                     np.asarray(getattr(spec, f))) for f in fields)
+    return (same_fields and int(stacked.init[k]) == int(spec.init)
+            and bool(stacked.is_finite[k]) == bool(spec.is_finite))
 
 
 def match_formulas(stacked: Any, candidates: Sequence[str], propositions: Sequence[str],
@@ -321,7 +325,8 @@ def make_policy(network: LTL2ActionNetwork, alphabet: jax.Array, obs_kinds: Mapp
         if spec_bank not in banks:
             # host work at trace time: compile and compare concrete arrays, stage nothing
             with jax.ensure_compile_time_eval():
-                texts = match_formulas(jax.device_get(spec_bank.specs), candidates, props, alphabet_np)
+                stacked = jax.device_get(spec_bank.specs)
+                texts = match_formulas(stacked, candidates, props, alphabet_np)
                 banks[spec_bank] = build_bank(texts, props, alphabet_np)
         return banks[spec_bank]
 

@@ -110,7 +110,8 @@ class Progressor:
         return self.memo[key]
 
 
-def formula_graph(f: spot.formula, propositions: Sequence[str]) -> tuple[list[int], list[int], list[int]]:
+def formula_graph(f: spot.formula, propositions: Sequence[str]
+                  ) -> tuple[list[int], list[int], list[int]]:
     """LTL2Action's syntax-tree graph of `f`: `(token, parent, edge type)` per node, preorder,
     root first (parent -1). Edges run child -> parent; the self edges are implicit."""
     index = {p: i for i, p in enumerate(propositions)}
@@ -129,7 +130,8 @@ def formula_graph(f: spot.formula, propositions: Sequence[str]) -> tuple[list[in
             tokens.append(FALSE_TOKEN)
         elif kind == spot.op_ap:
             if g.ap_name() not in index:
-                raise ValueError(f"proposition {g.ap_name()!r} is not one of the world's {tuple(propositions)}")
+                raise ValueError(f"proposition {g.ap_name()!r} is not one of the world's "
+                                 f"{tuple(propositions)}")
             tokens.append(PROP_OFFSET + index[g.ap_name()])
         elif kind in _UNARY:
             tokens.append(OPERATORS.index(_UNARY[kind]))
@@ -218,7 +220,8 @@ def closure(formulas: Sequence[str], propositions: Sequence[str], alphabet: np.n
     if not len(formulas):
         raise ValueError("need at least one formula")
     if alphabet.ndim != 2 or alphabet.shape[1] != len(propositions):
-        raise ValueError(f"alphabet must be bool[A, {len(propositions)}], got shape {alphabet.shape}")
+        raise ValueError(f"alphabet must be bool[A, {len(propositions)}], got shape "
+                         f"{alphabet.shape}")
     prog = progressor or Progressor()
     symbols = [frozenset(p for p, on in zip(propositions, row) if on) for row in alphabet]
     ids: dict[spot.formula, int] = {}
@@ -325,7 +328,8 @@ class ProgressionSource:
     def takes_epsilon(self, task: ProgressionTask, slot: jax.Array) -> jax.Array:
         return jnp.zeros((), bool)
 
-    def step(self, key: jax.Array, task: ProgressionTask, props: jax.Array, symbol: jax.Array | None,
+    def step(self, key: jax.Array, task: ProgressionTask, props: jax.Array,
+             symbol: jax.Array | None,
              is_epsilon: jax.Array, slot: jax.Array, source_params: Any = None
              ) -> tuple[ProgressionTask, Events]:
         if symbol is None:

@@ -13,7 +13,13 @@ from specrl_jax.baselines.encoders import obs_parts
 from specrl_jax.baselines.ppo import make_train
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.tasks import TaskEnv
-from specrl_jax.tasks.progression import EDGE_ARG1, EDGE_ARG2, build_bank, formula_graph, num_features
+from specrl_jax.tasks.progression import (
+    EDGE_ARG1,
+    EDGE_ARG2,
+    build_bank,
+    formula_graph,
+    num_features,
+)
 
 PROPS = tuple("abcdefghijkl")
 
@@ -21,8 +27,8 @@ PROPS = tuple("abcdefghijkl")
 def _graph(text, pad=12):
     tokens, parent, edge = (np.asarray(x) for x in formula_graph(spot.formula(text), PROPS))
     padding = pad - len(tokens)
-    return (np.pad(tokens, (0, padding), constant_values=-1), np.pad(parent, (0, padding), constant_values=-1),
-            np.pad(edge, (0, padding)))
+    return (np.pad(tokens, (0, padding), constant_values=-1),
+            np.pad(parent, (0, padding), constant_values=-1), np.pad(edge, (0, padding)))
 
 
 def _encoder():
@@ -43,7 +49,8 @@ def _numpy_rgcn(params, tokens, parent, edge, features, layers=8):
     weight, bias = p["relation_kernel"], p["relation_bias"]
     for _ in range(layers):
         x = {i: np.concatenate([h[i], h0[i]]) for i in live}
-        h = {i: np.tanh(x[i] @ weight[0] + sum(x[j] @ weight[edge[j]] for j in live if parent[j] == i) + bias)
+        h = {i: np.tanh(x[i] @ weight[0]
+                        + sum(x[j] @ weight[edge[j]] for j in live if parent[j] == i) + bias)
              for i in live}
     root = next(i for i in live if parent[i] < 0)
     return h[root] @ p["Dense_1"]["kernel"] + p["Dense_1"]["bias"]
@@ -79,7 +86,8 @@ def test_rgcn_is_invariant_to_node_order_and_padding_but_not_to_edge_types():
     assert np.abs(swapped_emb - base).max() > 1e-3
     # a batch of graphs gives each graph's own embedding
     other = _graph("F(a & F(b | c))")
-    batch = encoder.apply(params, *(np.stack([x, y]) for x, y in zip((tokens, parent, edge), other)))
+    pairs = zip((tokens, parent, edge), other)
+    batch = encoder.apply(params, *(np.stack([x, y]) for x, y in pairs))
     np.testing.assert_allclose(batch[0], base, rtol=1e-5, atol=1e-5)
     np.testing.assert_allclose(batch[1], encoder.apply(params, *other), rtol=1e-5, atol=1e-5)
 
@@ -101,7 +109,8 @@ def test_ltl2action_learns_formulas_on_a_tiny_letter_world_through_the_task_loop
     cfg = ltl2action.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * updates,
                                 update_epochs=4, num_minibatches=2)
     _, metrics = jax.jit(make_train(cfg, method))(jax.random.key(1))
-    rows = [ltl2action.summarise({k: float(v[i]) for k, v in metrics.items()}) for i in range(updates)]
+    rows = [ltl2action.summarise({k: float(v[i]) for k, v in metrics.items()})
+            for i in range(updates)]
     first = np.mean([r["success_rate"] for r in rows[:5]])
     last = np.mean([r["success_rate"] for r in rows[-5:]])
     assert first < 0.4 and last > 0.6, (first, last)
@@ -135,7 +144,8 @@ def test_test_time_agent_progresses_the_evaluated_formula_itself():
             key_policy, key_step = jax.random.split(jax.random.fold_in(key_loop, t))
             action, carry = policy.apply(net_params, obs, state, carry, key_policy)
             obs, state, _, _, _, _ = task.step_task(key_step, state, action, params)
-            _, seen = policy.apply(net_params, obs, state, carry, key_policy)  # the next step's view
+            # the carry as the next step's call will see it
+            _, seen = policy.apply(net_params, obs, state, carry, key_policy)
             return (obs, state, carry), (seen.state, state.success, state.violation)
 
         _, trace = jax.lax.scan(body, (obs, state, carry), jnp.arange(30))

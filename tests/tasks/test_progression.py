@@ -45,7 +45,8 @@ def _word_text(rows: np.ndarray) -> str:
 
 def _satisfies(formula: spot.formula, prefix: list[np.ndarray], cycle: list[np.ndarray]) -> bool:
     """Spot's verdict: the lasso word prefix cycle^omega satisfies `formula`."""
-    parts = [_word_text(r) for r in prefix] + ["cycle{" + "; ".join(_word_text(r) for r in cycle) + "}"]
+    loop = "cycle{" + "; ".join(_word_text(r) for r in cycle) + "}"
+    parts = [_word_text(r) for r in prefix] + [loop]
     word = spot.parse_word("; ".join(parts)).as_automaton()
     return spot.translate(formula).intersects(word)
 
@@ -63,7 +64,8 @@ def test_progression_invariant_matches_spot_on_random_lasso_words(alphabet_name)
             symbols = rng.integers(0, alphabet.shape[0], size=int(rng.integers(2, 6)))
             split = int(rng.integers(0, len(symbols) - 1))
             prefix, cycle = list(symbols[:split]), list(symbols[split:])
-            verdict = _satisfies(formula, [alphabet[s] for s in prefix], [alphabet[s] for s in cycle])
+            verdict = _satisfies(formula, [alphabet[s] for s in prefix],
+                                 [alphabet[s] for s in cycle])
             word = prefix + cycle + cycle
             state = int(bank.roots[k])
             for i, symbol in enumerate(word):
@@ -99,7 +101,8 @@ def test_co_safe_training_formulas_succeed_exactly_when_spot_accepts_a_finite_wo
             state = int(bank.roots[k])
             for s in symbols:
                 state = int(bank.delta[state, s])
-            rows = [" & ".join(p if on else f"!{p}" for p, on in zip(letters, alphabet[s])) for s in symbols]
+            rows = [" & ".join(p if on else f"!{p}" for p, on in zip(letters, alphabet[s]))
+                    for s in symbols]
             idle = " & ".join(f"!{p}" for p in letters)
             word = spot.parse_word("; ".join(rows + ["cycle{" + idle + "}"])).as_automaton()
             assert aut.intersects(word) == bool(bank.is_true[state]), (text, symbols)
@@ -108,7 +111,8 @@ def test_co_safe_training_formulas_succeed_exactly_when_spot_accepts_a_finite_wo
 
 def test_graph_is_the_original_syntax_tree_with_typed_child_to_parent_edges():
     tokens, parent, edge = formula_graph(spot.formula("!a U (b & F c)"), PROPS)
-    until, not_, and_, eventually = (OPERATORS.index(o) for o in ("until", "not", "and", "eventually"))
+    names = ("until", "not", "and", "eventually")
+    until, not_, and_, eventually = (OPERATORS.index(o) for o in names)
     a, b, c = (PROP_OFFSET + PROPS.index(p) for p in "abc")
     # preorder: U, !, a, &, b, F, c  (Spot orders the conjunction b & Fc as written)
     assert tokens == [until, not_, a, and_, b, eventually, c]
@@ -124,7 +128,8 @@ def test_graph_is_the_original_syntax_tree_with_typed_child_to_parent_edges():
 def test_bank_tables_shapes_padding_and_false_state():
     bank = build_bank(["!a U b", "F c"], PROPS, automata.zero_or_one(4))
     assert bank.delta.shape == (bank.num_states, 6) and bank.roots.shape == (2,)
-    assert np.array_equal(np.asarray(bank.delta[:, -1]), np.arange(bank.num_states))  # unknown label stays
+    # a label outside the alphabet stays
+    assert np.array_equal(np.asarray(bank.delta[:, -1]), np.arange(bank.num_states))
     falsified = int(step_state(bank, bank.roots[0], jnp.array([True, False, False, False])))
     assert bool(bank.is_false[falsified]) and int(bank.tokens[falsified, 0]) == FALSE_TOKEN
     assert np.all(np.asarray(bank.tokens[falsified, 1:]) == -1)
@@ -145,7 +150,8 @@ def test_budgets_and_bad_formulas_raise_clear_errors():
 
 
 def test_progression_source_in_the_task_loop_ends_on_truth_and_falsity():
-    world, params = make_letter_world(LetterConfig(grid_size=5, letters=("a", "b"), counts=1), max_steps=20)
+    config = LetterConfig(grid_size=5, letters=("a", "b"), counts=1)
+    world, params = make_letter_world(config, max_steps=20)
     bank = build_bank(["!b U a"], world.propositions, world.alphabet)
     task = TaskEnv(world, ProgressionSource(bank, world.alphabet))
     key = jax.random.key(0)
@@ -154,7 +160,8 @@ def test_progression_source_in_the_task_loop_ends_on_truth_and_falsity():
     outcomes = []
     for i in range(200):
         action = jax.random.randint(jax.random.fold_in(key, 5000 + i), (), 0, 4)
-        _, state_next, reward, terminated, truncated, info = step(jax.random.fold_in(key, i), state, action)
+        _, state_next, reward, terminated, truncated, info = step(
+            jax.random.fold_in(key, i), state, action)
         props = np.asarray(info["propositions"])
         if props[0]:
             assert bool(info["success"]) and float(reward) == 1.0 and bool(terminated)
