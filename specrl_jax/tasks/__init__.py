@@ -1,8 +1,10 @@
-"""The task layer: the one task loop (a world x a spec source), the spec sources, and the policy
-protocol that evaluation and the baselines share."""
+"""The task layer: the one task loop (a world x a spec source), the spec sources (compiled
+automata, reach-avoid sequences, LTL progression), and the policy protocol that evaluation and
+the baselines share."""
 
 from specrl_jax.tasks.loop import TaskEnv, TaskState, reward_progress
 from specrl_jax.tasks.policy import StatefulPolicy, as_stateful, random_policy, split_action
+from specrl_jax.tasks.progression import ProgressionBank, ProgressionSource, ProgressionTask
 from specrl_jax.tasks.sources import (
     AutomatonSource,
     AutomatonTask,
@@ -17,6 +19,9 @@ __all__ = [
     "AutomatonSource",
     "AutomatonTask",
     "Events",
+    "ProgressionBank",
+    "ProgressionSource",
+    "ProgressionTask",
     "SequenceSource",
     "SequenceTask",
     "SpecBank",
