@@ -173,7 +173,8 @@ def test_evaluate_runs_each_trained_seed_on_the_suite_protocol(monkeypatch):
     obs, _ = method.env.reset(jax.random.key(0), method.init_task_params())
     one = method.network.init(jax.random.key(0), jax.tree.map(lambda x: x[None], obs))
     two_seeds = jax.tree.map(lambda x: jnp.stack([x, x]), one)
-    (suite,) = experiment.evaluate("genz", "LetterLTL0-v0", two_seeds, ["tiny"], 3, log=lambda s: None)
+    (suite,) = experiment.evaluate("genz", "LetterLTL0-v0", two_seeds, ["letter/finite/ind"], 3,
+                                      log=lambda s: None)
     table = suite.result.table
     assert table.success.shape == (2, 2, 3) and suite.result.horizon == 75
     assert suite.result.seeds == (1, 2) and suite.method == "GenZ-LTL"
