@@ -3,8 +3,10 @@ PointLTL0-v0, deployed on every agent of PointLTL0MA2-v0 by the central coordina
 (`specrl_jax.tasks.coordinator`), scored on the multi-agent finite (`indep`, `coop`, `mix`) and
 infinite (`rsp`, `rec`, `per`) suites by `eval.suites.evaluate_suites`.
 
-    python benchmarks/eval_multi_agent.py --methods genz deepltl --episodes 2 --seeds 1 \
-        --infinite-horizon 2000 --out benchmarks/results/multi_agent_coordinator.json
+    python benchmarks/eval_multi_agent.py --methods genz deepltl --seeds 5 --episodes 10 \
+        --out benchmarks/results/multi_agent_coordinator.json
+
+(`--infinite-horizon N` shortens the infinite suites' 10,000-step episodes for a quick look.)
 
 The trained parameters of one seed are read from
 `benchmarks/results/pointltl0_<method>_params_seed1.msgpack` (no leading seed axis); every
