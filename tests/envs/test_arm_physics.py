@@ -82,22 +82,25 @@ def test_tracking_gains_match_the_original_under_random_actions(physics):
     (the reference measured gains 0.61, 0.50, 0.82, 0.82, 0.86, 0.877, 0.878 and lags 0.21 and
     0.12 on joints 1 and 2, about 0 elsewhere), and the arm holds still under zero action.
     A Python loop over one jitted step (a scanned rollout compiles for minutes on a CPU)."""
-    batch, steps = 2, 100
-    step = jax.jit(jax.vmap(lambda s, a: physics.step(s, s.qpos + 0.05 * a)))
-    state = jax.vmap(physics.init)(jnp.tile(jnp.asarray(arm_model.NEUTRAL_QPOS, jnp.float32), (batch, 1)))
-    start = np.asarray(state.qpos)
+    episodes, steps = 2, 100
+    step = jax.jit(lambda s, a: physics.step(s, s.qpos + 0.05 * a))
+    neutral = jnp.asarray(arm_model.NEUTRAL_QPOS, jnp.float32)
+    state = physics.init(neutral)
     for _ in range(10):
-        state = step(state, jnp.zeros((batch, 7)))
-    assert np.abs(np.asarray(state.qpos) - start).max() < 2e-3  # holds against gravity
+        state = step(state, jnp.zeros(7))
+    assert np.abs(np.asarray(state.qpos - neutral)).max() < 2e-3  # holds against gravity
     rng = np.random.default_rng(0)
     actions, dq = [], []
-    for _ in range(steps):
-        action = rng.uniform(-1, 1, (batch, 7)).astype(np.float32)
-        new = step(state, jnp.asarray(action))
-        actions.append(0.05 * action)
-        dq.append(np.asarray(new.qpos - state.qpos))
-        state = new
-    a, dq = np.asarray(actions), np.asarray(dq)
+    for _ in range(episodes):
+        state = physics.init(neutral)
+        for _ in range(steps):
+            action = rng.uniform(-1, 1, 7).astype(np.float32)
+            new = step(state, jnp.asarray(action))
+            actions.append(0.05 * action)
+            dq.append(np.asarray(new.qpos - state.qpos))
+            state = new
+    a = np.asarray(actions).reshape(episodes, steps, 7).transpose(1, 0, 2)
+    dq = np.asarray(dq).reshape(episodes, steps, 7).transpose(1, 0, 2)
     assert np.isfinite(dq).all()
     gains, lags = [], []
     for j in range(7):
