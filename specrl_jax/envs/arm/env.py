@@ -55,7 +55,8 @@ class ArmEnv(Env):
       `ap` float32[P, 4] (mode 0: `[dir_x, dir_y, dir_z, dist]` to the nearest region of each
       colour) or float32[P, 8, 4] (mode 1: per link, arm propositions 8 links, gripper
       propositions the 2 fingers then zero rows).
-    Action: float32[7] in [-1, 1] (clipped; NaN/inf: see `base.Env.step`): joint targets q + 0.05 a, 20
+    Action: float32[7] in [-1, 1] (clipped; NaN/inf: see `base.Env.step`): joint targets
+      q + 0.05 a, 20
       physics substeps of 2 ms (dt 0.04 s) under PyBullet's emulated position motor.
     Labels: mode 0 `<colour>`: grasp target within a region; mode 1 `arm_<colour>`: an arm link
       (links 1-7, hand) touches or penetrates a region, `grippers_<colour>`: both fingers do.
@@ -139,12 +140,15 @@ class ArmEnv(Env):
         if not isinstance(num_maps, int) or isinstance(num_maps, bool) or num_maps < 1:
             raise ValueError(f"num_maps must be a positive int, got {num_maps!r}")
         params = self.default_params if params is None else params
-        bank, ok = jax.jit(layout_lib.sample_bank, static_argnums=(1, 2))(key, self.config, num_maps)
+        sample = jax.jit(layout_lib.sample_bank, static_argnums=(1, 2))
+        bank, ok = sample(key, self.config, num_maps)
         if not bool(jnp.all(ok)):
             raise ValueError(f"{int((~ok).sum())} of {num_maps} layouts could not be placed")
         return params.replace(layout_bank=bank.astype(jnp.float32))
 
-    def reset_to(self, key: jax.Array, layout: dict[str, Any], params: ArmParams) -> tuple[Obs, ArmState]:
+    def reset_to(
+        self, key: jax.Array, layout: dict[str, Any], params: ArmParams
+    ) -> tuple[Obs, ArmState]:
         """Start from `layout` (`region_pos float[Z, 3]`, optional `joint_qpos float[7]`, default
         the neutral pose); the arm starts at rest. `key` is unused (the start is deterministic)."""
         del key, params
@@ -235,7 +239,8 @@ class ArmEnv(Env):
                 keys.append((f"dist_to_{c}", (self.propositions.index(c), None)))
             else:
                 keys.append((f"dist_to_arm_{c}", (self.propositions.index(f"arm_{c}"), 8)))
-                keys.append((f"dist_to_grippers_{c}", (self.propositions.index(f"grippers_{c}"), 2)))
+                grippers = self.propositions.index(f"grippers_{c}")
+                keys.append((f"dist_to_grippers_{c}", (grippers, 2)))
         return keys
 
     @property

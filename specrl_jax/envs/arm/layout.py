@@ -89,7 +89,8 @@ def place(key: jax.Array, config: ArmConfig) -> tuple[jax.Array, jax.Array]:
         return (centres, ok & jnp.any(good)), None
 
     keys = jax.random.split(key, num)
-    (centres, ok), _ = jax.lax.scan(step, (jnp.zeros((num, 3)), jnp.array(True)), (jnp.arange(num), keys))
+    init = (jnp.zeros((num, 3)), jnp.array(True))
+    (centres, ok), _ = jax.lax.scan(step, init, (jnp.arange(num), keys))
     return centres, ok
 
 

@@ -64,7 +64,8 @@ def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: 
     def sweep(_, tau):
         for i in range(tau.shape[0]):  # rows in order, as Bullet's sequential impulses
             residual = want[i] - inverse[i] @ tau
-            tau = tau.at[i].set(jnp.clip(tau[i] + residual / diag[i], -force_limit[i], force_limit[i]))
+            updated = jnp.clip(tau[i] + residual / diag[i], -force_limit[i], force_limit[i])
+            tau = tau.at[i].set(updated)
         return tau
 
     tau = jax.lax.fori_loop(0, sweeps, sweep, tau)
