@@ -122,9 +122,9 @@ class ArmEnv(Env):
     def reset_env(self, key: jax.Array, params: ArmParams) -> tuple[Obs, ArmState]:
         if params.layout_bank is None:
             centres, ok = layout_lib.sample_centres(key, self.config)
+            rounds = self.config.max_rounds
             checkify.debug_check(
-                ok, "the arm's layout sampler found no valid layout in max_rounds={r} rounds",
-                r=self.config.max_rounds,
+                ok, f"the arm's layout sampler found no valid layout in max_rounds={rounds} rounds"
             )
         else:
             bank = jnp.asarray(params.layout_bank)
