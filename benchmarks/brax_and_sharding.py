@@ -74,7 +74,8 @@ def main() -> None:
               "versions": {n: version(n) for n in ("jax", "brax", "mujoco-mjx")},
               "date": time.strftime("%Y-%m-%d")}
     if "ours" not in args.skip:
-        record["ours_env_steps_per_s"] = ours(args.env, args.num_envs, args.unroll, args.updates, False)
+        record["ours_env_steps_per_s"] = ours(args.env, args.num_envs, args.unroll, args.updates,
+                                              False)
         print(record, flush=True)
     if "sharded" not in args.skip:
         record["ours_sharded_env_steps_per_s"] = ours(args.env, args.num_envs, args.unroll,

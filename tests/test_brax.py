@@ -103,6 +103,11 @@ def dot_env(horizon: int = 8) -> BraxTaskEnv:
     return BraxTaskEnv(method.env.task, method.env.params)
 
 
+def flat(obs) -> np.ndarray:
+    """The adapter's flattening, written out: every leaf in sorted-key order."""
+    return np.concatenate([np.ravel(obs[name]) for name in sorted(obs)])
+
+
 def test_adapter_matches_the_task_loop_step_by_step():
     """Reset and step are the task loop's (same keys), actions scaled [-1, 1] -> the world's box,
     the observation is GenZ's reduced one flattened, the reward the loop's progress reward."""
@@ -111,7 +116,7 @@ def test_adapter_matches_the_task_loop_step_by_step():
     state = jax.jit(env.reset)(jax.random.PRNGKey(3))
     key_reset, key = jax.random.split(jax.random.PRNGKey(3))
     obs, task_state = task.reset(key_reset, params, None, source_params)
-    np.testing.assert_allclose(state.obs, np.concatenate([np.ravel(x) for x in jax.tree.leaves(obs)]))
+    np.testing.assert_allclose(state.obs, flat(obs))
     assert env.observation_size == state.obs.shape[0] == 2 + 2 * 2  # ego + pooled reach, avoid
     assert env.action_size == 2
     step = jax.jit(env.step)
@@ -121,8 +126,7 @@ def test_adapter_matches_the_task_loop_step_by_step():
         key, key_step = jax.random.split(key)
         obs, task_state, reward, terminated, truncated, info = task.step(
             key_step, task_state, 2.0 * action, params, False, source_params)
-        np.testing.assert_allclose(state.obs, np.concatenate([np.ravel(x) for x in jax.tree.leaves(obs)]),
-                                   rtol=1e-6)
+        np.testing.assert_allclose(state.obs, flat(obs), rtol=1e-6)
         assert float(state.reward) == float(reward)
         assert float(state.done) == float(terminated | truncated)
         assert float(state.info["truncation"]) == float(truncated)
