@@ -73,7 +73,8 @@ def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int
 def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str, Any], num_seeds: int = 1,
           seed: int = 0, map_bank: int | None = 65536, chunk_updates: int = 10,
           log: Callable[[str], None] = print, max_wall_s: float | None = None,
-          restart: bool = False, devices: Sequence[Any] | None = None) -> tuple[Any, dict[str, Any]]:
+          restart: bool = False, devices: Sequence[Any] | None = None
+          ) -> tuple[Any, dict[str, Any]]:
     """Train `num_seeds` runs; returns `(params with a leading seed axis, training summary)`.
     `restart` discards a run directory's earlier run (else it is resumed if its settings match).
     The env batch is sharded over `devices` (default: every local device; `num_envs` must

@@ -53,9 +53,10 @@ for mesh in (None, env_mesh()):
         results.append((runner, runs.read_metrics(run_dir)))
 (plain, rows_plain), (sharded, rows_sharded) = results
 out["sharded_devices"] = len(sharded.env_state[0].sharding.device_set)
-out["params_max_diff"] = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b))))
-                             for a, b in zip(jax.tree.leaves(plain.params), jax.tree.leaves(sharded.params)))
-out["successes_equal"] = [r["successes"] for r in rows_plain] == [r["successes"] for r in rows_sharded]
+pairs = zip(jax.tree.leaves(plain.params), jax.tree.leaves(sharded.params))
+out["params_max_diff"] = max(float(np.max(np.abs(np.asarray(a) - np.asarray(b)))) for a, b in pairs)
+successes = lambda rows: [r["successes"] for r in rows]
+out["successes_equal"] = successes(rows_plain) == successes(rows_sharded)
 
 # the one-call trainer on 2 devices: compared with the two-process run
 runner, _ = jax.jit(make_train(CFG, ChainMethod(), env_mesh()))(jax.random.key(7))
@@ -91,7 +92,8 @@ seeds = jnp.asarray([1, 2], jnp.uint32)
 one = make_evaluator(policy, task, world.default_params, 3, devices=jax.devices()[:1])(None, seeds)
 both = make_evaluator(policy, task, world.default_params, 3)(None, seeds)
 out["eval_shape"] = list(both.success.shape)
-out["eval_equal"] = all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(one), jax.tree.leaves(both)))
+pairs = zip(jax.tree.leaves(one), jax.tree.leaves(both))
+out["eval_equal"] = all(np.array_equal(a, b) for a, b in pairs)
 out["eval_successes"] = int(np.sum(both.success))
 print("RESULT " + json.dumps(out))
 """
