@@ -158,15 +158,21 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
 
 
 def load_params(method: str, env_id: str, path: str | Path, num_seeds: int) -> Any:
-    """Read `params.msgpack` written by `train` (leading seed axis)."""
+    """Read `params.msgpack` written by `train` (leading seed axis), or one seed's parameters
+    without that axis (`benchmarks/results/*_params_seed1.msgpack`), returned with it."""
     world, env_params = make(env_id)
     method_obj = method_module(method).make_method(world, env_params, family(env_id))
     # shapes only: running the env's reset and the network's init eagerly takes seconds on a CPU
     obs, _ = jax.eval_shape(method_obj.env.reset, jax.random.key(0), method_obj.init_task_params())
     one_obs = jax.tree.map(lambda x: jax.ShapeDtypeStruct((1, *x.shape), x.dtype), obs)
     one = jax.eval_shape(method_obj.network.init, jax.random.key(0), one_obs)
+    stored = serialization.msgpack_restore(Path(path).read_bytes())
+    leaf = jax.tree.leaves(stored)[0]
+    if num_seeds == 1 and np.ndim(leaf) == len(jax.tree.leaves(one)[0].shape):
+        single = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), one)
+        return jax.tree.map(lambda x: x[None], serialization.from_state_dict(single, stored))
     template = jax.tree.map(lambda x: np.zeros((num_seeds, *x.shape), x.dtype), one)
-    return serialization.from_bytes(template, Path(path).read_bytes())
+    return serialization.from_state_dict(template, stored)
 
 
 def default_overrides(device_kind: str, total_steps: int | None = None,

@@ -32,8 +32,10 @@ def test_every_single_agent_id_builds_a_training_env_for_each_method():
         assert int(params.max_steps) == {"letter": 75, "zone": 1000, "arm": 200}[family]
 
 
-@pytest.mark.parametrize("env_id", ["LetterLTL0-v0", "PointLTL0-v0", "CarLTL0-v0", "AntLTL0-v0"])
-@pytest.mark.parametrize("module", [genz, deepltl], ids=["genz", "deepltl"])
+@pytest.mark.parametrize("env_id, module", [
+    ("LetterLTL0-v0", genz), ("LetterLTL0-v0", deepltl), ("PointLTL0-v0", genz),
+    ("PointLTL0-v0", deepltl), ("CarLTL0-v0", genz), ("AntLTL0-v0", deepltl),
+], ids=["letter-genz", "letter-deepltl", "point-genz", "point-deepltl", "car-genz", "ant-deepltl"])
 def test_one_update_on_each_robot(env_id, module):
     """One PPO update through the task loop: finite losses, the world's own batch."""
     world, params = specrl_jax.make(env_id)

@@ -180,7 +180,9 @@ def test_layout_round_trip_and_labels_after_a_step(stepping):
     assert on == {"arm_magenta", "grippers_magenta"}
 
 
-@pytest.mark.parametrize("env_id", IDS)
+# one ID per mode: the .partial variants differ only in the feature scaling (tested above) and
+# each checker run compiles the arm's step (about a minute on a 2-core CPU)
+@pytest.mark.parametrize("env_id", IDS[::3])
 def test_gymnasium_bridge_gives_the_original_dict(env_id):
     import specrl_jax.gym  # noqa: F401  (registers the IDs)
 
