@@ -18,6 +18,7 @@ BATCH = 3
 def world():
     env, params = specrl_jax.make("PointLTL0-v0", max_steps=6)
     auto = AutoReset(env)
+    chex.clear_trace_counter()  # other modules' assert_max_traces wrappers count the same methods
     reset = jax.jit(chex.assert_max_traces(env.reset, n=1))
     step = jax.jit(chex.assert_max_traces(auto.step, n=1))
     return env, params, reset, step, jax.jit(env.reset_to)
