@@ -27,7 +27,7 @@ from specrl_jax.baselines.ppo.networks import (
     PolicyOutput,
     critic,
 )
-from specrl_jax.baselines.ppo.train import PPOConfig
+from specrl_jax.baselines.ppo.train import PPOConfig, world_config
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.specs import CurriculumSampler, curriculum
 from specrl_jax.tasks import SequenceSource, StatefulPolicy, TaskEnv
@@ -190,16 +190,8 @@ def summarise(row: dict[str, float]) -> dict[str, float]:
 def ppo_config(world: str = "letter", **overrides: Any) -> PPOConfig:
     """DeepLTL's settings: LetterWorld 16 x 128, minibatch 256, 8 epochs, gamma 0.94, entropy
     0.01; ZoneEnv 16 x 4096, minibatch 2048, 10 epochs, gamma 0.998, entropy 0.003."""
-    base = {
-        "letter": {"num_envs": 16, "num_steps": 128, "num_minibatches": 8, "update_epochs": 8,
-                   "gamma": 0.94, "ent_coef": 0.01},
-        "zone": {"num_envs": 16, "num_steps": 4096, "num_minibatches": 32, "update_epochs": 10,
-                 "gamma": 0.998, "ent_coef": 0.003},
-        "arm": {"num_envs": 16, "num_steps": 1024, "num_minibatches": 8, "update_epochs": 10,
-                "gamma": 0.99, "ent_coef": 0.003},
-    }[world]
-    common = {"loss": "ppo", "vf_coef": 0.5, "gae_lambda": 0.95, "lr": 3e-4}
-    return PPOConfig(**{**common, **base, **overrides})
+    return world_config(world, {"update_epochs": 8 if world == "letter" else 10, "loss": "ppo",
+                                "vf_coef": 0.5, "gae_lambda": 0.95, "lr": 3e-4}, **overrides)
 
 
 # ---------------------------------------------------------------------------------------------

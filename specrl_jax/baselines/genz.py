@@ -33,7 +33,7 @@ from specrl_jax.baselines.ppo.networks import (
     PolicyOutput,
     critic,
 )
-from specrl_jax.baselines.ppo.train import PPOConfig
+from specrl_jax.baselines.ppo.train import PPOConfig, world_config
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.specs import CurriculumSampler, curriculum
 from specrl_jax.tasks import SequenceSource, StatefulPolicy, TaskEnv
@@ -175,16 +175,10 @@ def ppo_config(world: str = "letter", **overrides: Any) -> PPOConfig:
     """GenZ-LTL's settings (RCO, c_v 1.0, up to 80 epochs with KL stop): LetterWorld 16 x 128,
     minibatch 256, gamma 0.94, entropy 0.01; ZoneEnv 16 x 4096, minibatch 2048, gamma 0.998,
     entropy 0.003, target KL 0.01, lr 3e-4 (the run script's; the saved config says 1e-4)."""
-    base = {
-        "letter": {"num_envs": 16, "num_steps": 128, "num_minibatches": 8, "gamma": 0.94,
-                   "ent_coef": 0.01, "target_kl": 0.015},
-        "zone": {"num_envs": 16, "num_steps": 4096, "num_minibatches": 32, "gamma": 0.998,
-                 "ent_coef": 0.003, "target_kl": 0.01},
-        "arm": {"num_envs": 16, "num_steps": 1024, "num_minibatches": 8, "gamma": 0.99,
-                "ent_coef": 0.003, "target_kl": 0.01},
-    }[world]
-    common = {"update_epochs": 80, "loss": "rco", "vf_coef": 1.0, "gae_lambda": 0.95, "lr": 3e-4}
-    return PPOConfig(**{**common, **base, **overrides})
+    target_kl = 0.015 if world == "letter" else 0.01
+    return world_config(world, {"update_epochs": 80, "loss": "rco", "vf_coef": 1.0,
+                                "gae_lambda": 0.95, "lr": 3e-4, "target_kl": target_kl},
+                        **overrides)
 
 
 # ---------------------------------------------------------------------------------------------

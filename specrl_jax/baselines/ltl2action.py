@@ -25,7 +25,7 @@ import numpy as np
 from specrl_jax import automata, specs
 from specrl_jax.baselines.encoders import ImageCNN, check_kinds, obs_parts
 from specrl_jax.baselines.ppo.networks import Categorical, GaussianHead, LetterCNN, PolicyOutput
-from specrl_jax.baselines.ppo.train import PPOConfig
+from specrl_jax.baselines.ppo.train import PPOConfig, world_config
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.tasks import StatefulPolicy, TaskEnv
 from specrl_jax.tasks.progression import (
@@ -235,16 +235,8 @@ def ppo_config(world: str = "letter", **overrides: Any) -> PPOConfig:
     gamma 0.94, entropy 0.01; ZoneEnv 16 x 4096, minibatch 2048, 10 epochs, gamma 0.998, entropy
     0.003; lr 3e-4, GAE 0.95, clip 0.2. The arm (no original setting) takes ZoneEnv's with
     gamma 0.99 and 16 x 1024."""
-    base = {
-        "letter": {"num_envs": 16, "num_steps": 128, "num_minibatches": 8, "update_epochs": 4,
-                   "gamma": 0.94, "ent_coef": 0.01},
-        "zone": {"num_envs": 16, "num_steps": 4096, "num_minibatches": 32, "update_epochs": 10,
-                 "gamma": 0.998, "ent_coef": 0.003},
-        "arm": {"num_envs": 16, "num_steps": 1024, "num_minibatches": 8, "update_epochs": 10,
-                "gamma": 0.99, "ent_coef": 0.003},
-    }[world]
-    common = {"loss": "ppo", "vf_coef": 0.5, "gae_lambda": 0.95, "lr": 3e-4}
-    return PPOConfig(**{**common, **base, **overrides})
+    return world_config(world, {"update_epochs": 4 if world == "letter" else 10, "loss": "ppo",
+                                "vf_coef": 0.5, "gae_lambda": 0.95, "lr": 3e-4}, **overrides)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -77,6 +77,24 @@ class PPOConfig:
         return losses.LossConfig(**{f: getattr(self, f) for f in fields})
 
 
+#: the reference shapes and discounts shared by the baselines, per world family
+WORLD_SETTINGS = {
+    "letter": {"num_envs": 16, "num_steps": 128, "num_minibatches": 8, "gamma": 0.94,
+               "ent_coef": 0.01},
+    "zone": {"num_envs": 16, "num_steps": 4096, "num_minibatches": 32, "gamma": 0.998,
+             "ent_coef": 0.003},
+    "arm": {"num_envs": 16, "num_steps": 1024, "num_minibatches": 8, "gamma": 0.99,
+            "ent_coef": 0.003},
+}
+
+
+def world_config(world: str, method: dict[str, Any], **overrides: Any) -> PPOConfig:
+    """`WORLD_SETTINGS[world]`, then a method's own settings, then `overrides`."""
+    if world not in WORLD_SETTINGS:
+        raise ValueError(f"unknown world family {world!r}; accepted: {sorted(WORLD_SETTINGS)}")
+    return PPOConfig(**{**WORLD_SETTINGS[world], **method, **overrides})
+
+
 class Method(Protocol):
     """What a baseline plugs into the trainer."""
 
