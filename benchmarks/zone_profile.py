@@ -1,0 +1,223 @@
+"""Where one Car / Ant env step spends its time: the MJX stages, timed one by one.
+
+For each robot the script builds the level-0 world, resets `--batch` worlds and runs `--warm`
+random-action env steps (so contacts are live), then times, on whatever device JAX runs on:
+
+  kinematics   smooth.kinematics, com_pos, crb, factor_m (the mass matrix and its factor)
+  collision    collision_driver.collision (C's capsule frame for the Ant, as `Physics` traces)
+  constraint   constraint.make_constraint (contact and limit rows: efc_J, efc_D, efc_aref, ...)
+  smooth       transmission, fwd_velocity, fwd_actuation, fwd_acceleration
+  solver       solver.solve (Newton, the model's iteration and line-search caps)
+  sensors      sensor_pos, sensor_vel, sensor_acc
+  integration  the integrator's update after the forward pass (Euler: damping-implicit velocity
+               and position update; RK4: the final combination, its stage evaluations are
+               forward passes)
+  forward      mjx.forward whole (the sum of the stages above but integration, as fused by XLA)
+  env step     `ZoneEnv.step_env` (physics, LiDAR, labels, termination); env own code: the
+               LiDAR, sensors read-out, labels and termination alone; reset: `ZoneEnv.reset`
+               (an exact layout and a forward pass), which auto-reset runs for B/32 worlds a step
+
+Each stage is a `vmap` over the batch inside a `lax.fori_loop` of `--loops` applications (its
+output fed back as its input, so XLA cannot hoist it), timed as the best of `--repeats` calls after
+a warm-up; "ms" is per application. "x per env step" is how often the env step runs the stage
+(Euler: 11 forward passes; RK4: 4 per substep + 1), and "share" that count times the stage's time
+over the env step's. Writes a JSON to `--out`.
+
+Usage: python benchmarks/zone_profile.py --robots Car Ant --batch 16384 --out /tmp/profile.json
+       [--solver KEY=VALUE ...] (overrides of the robot's default `Solver`, e.g. contacts=tips)
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import datetime
+import json
+import platform
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import jaxlib
+import mujoco
+
+from specrl_jax.envs.zone import contact_frame, make_zone
+from specrl_jax.envs.zone.config import DEFAULT_SOLVERS, level_config
+from specrl_jax.envs.zone.mjx_import import mjx
+
+# isort: split
+from mujoco.mjx._src import collision_driver, constraint, sensor, smooth, solver
+from mujoco.mjx._src import forward as mjx_forward
+from mujoco.mjx._src.types import IntegratorType
+
+
+def _kinematics(m, d):
+    for f in (smooth.kinematics, smooth.com_pos, smooth.camlight, smooth.tendon, smooth.crb,
+              smooth.tendon_armature, smooth.factor_m):
+        d = f(m, d)
+    return d
+
+
+def _smooth(m, d):
+    d = smooth.transmission(m, d)
+    for f in (mjx_forward.fwd_velocity, mjx_forward.fwd_actuation, mjx_forward.fwd_acceleration):
+        d = f(m, d)
+    return d
+
+
+def _sensors(m, d):
+    return sensor.sensor_acc(m, sensor.sensor_vel(m, sensor.sensor_pos(m, d)))
+
+
+def _integration(m, d):
+    if m.opt.integrator == IntegratorType.EULER:
+        return mjx_forward.euler(m, d)
+    return mjx_forward._advance(m, d, d.act_dot, d.qacc, d.qvel)
+
+
+STAGES: dict[str, Callable] = {
+    "kinematics": _kinematics,
+    "collision": collision_driver.collision,
+    "constraint": constraint.make_constraint,
+    "smooth": _smooth,
+    "solver": solver.solve,
+    "sensors": _sensors,
+    "integration": _integration,
+    "forward": mjx.forward,
+}
+
+
+def _best(fn: Callable, args: tuple, repeats: int) -> float:
+    """Best wall seconds of `repeats` calls of a compiled `fn` after one warm-up call."""
+    jax.block_until_ready(fn(*args))
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(fn(*args))
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def _compile(fn: Callable, args: tuple, scope) -> tuple[Any, float]:
+    start = time.perf_counter()
+    with scope():
+        compiled = jax.jit(fn).lower(*args).compile()
+    return compiled, time.perf_counter() - start
+
+
+def profile(robot: str, batch: int, warm: int, loops: int, repeats: int,
+            overrides: dict[str, Any]) -> dict[str, Any]:
+    """Per-stage timings of one robot's env step (see the module docstring)."""
+    solver_cfg = dataclasses.replace(DEFAULT_SOLVERS[robot], **overrides)
+    env, params = make_zone(level_config(robot, 0, solver=solver_cfg))
+    physics = env.physics
+    scope = (contact_frame.c_contact_frame if physics.c_contact_frame
+             else contextlib.nullcontext)
+    key_reset, key_act = jax.random.split(jax.random.key(0))
+    keys = jax.random.split(key_reset, batch)
+    reset, reset_s = _compile(jax.vmap(env.reset, in_axes=(0, None)), (keys, params), scope)
+    _, state = reset(keys, params)
+    actions = jax.random.uniform(key_act, (batch, env.robot.action_dim), minval=-1, maxval=1)
+    step_keys = jax.random.split(key_act, batch)
+    env_step = jax.vmap(env.step_env, in_axes=(0, 0, 0, None))
+    env_step_c, env_step_s = _compile(env_step, (step_keys, state, actions, params), scope)
+    for _ in range(warm):
+        _, state, *_ = env_step_c(step_keys, state, actions, params)
+    rows: dict[str, dict[str, float]] = {}
+    rows["env step"] = {"ms": 1e3 * _best(env_step_c, (step_keys, state, actions, params),
+                                           repeats), "compile_s": env_step_s, "count": 1}
+
+    def own(s):
+        return env._observe(s), env._labels(s), s.physics.agent_pos[2]
+
+    own_c, own_s = _compile(jax.vmap(own), (state,), scope)
+    rows["env own code"] = {"ms": 1e3 * _best(own_c, (state,), repeats), "compile_s": own_s,
+                            "count": 1}
+    rows["reset"] = {"ms": 1e3 * _best(reset, (keys, params), repeats), "compile_s": reset_s,
+                     "count": 1 / 32}
+    model = physics.model
+    data = jax.vmap(lambda s, a: physics._template.replace(
+        qpos=s.qpos, qvel=s.qvel, qacc_warmstart=s.qacc_warmstart,
+        ctrl=jnp.asarray(a, physics.dtype)))(state.physics, actions)
+    forward_c, _ = _compile(jax.vmap(lambda d: mjx.forward(model, d)), (data,), scope)
+    data = forward_c(data)
+    rk4 = model.opt.integrator == IntegratorType.RK4
+    forwards = 10 * (4 if rk4 else 1) + 1
+    counts = {"integration": 10}
+    for name, stage in STAGES.items():
+        def looped(d, stage=stage):
+            return jax.lax.fori_loop(0, loops, lambda _, x: jax.vmap(
+                lambda y: stage(model, y))(x), d)
+
+        compiled, compile_s = _compile(looped, (data,), scope)
+        rows[name] = {"ms": 1e3 * _best(compiled, (data,), repeats) / loops,
+                      "compile_s": compile_s, "count": counts.get(name, forwards)}
+        print(f"  {robot} {name}: {rows[name]['ms']:.3f} ms", flush=True)
+    total = rows["env step"]["ms"]
+    for row in rows.values():
+        row["share"] = row["ms"] * row["count"] / total
+    impl = data._impl
+    return {
+        "robot": robot, "batch": batch, "solver": dataclasses.asdict(solver_cfg),
+        "contact_slots": int(impl.contact.dist.shape[-1]), "constraint_rows": int(
+            impl.efc_J.shape[-2]), "forwards_per_env_step": forwards,
+        "env_steps_per_s": batch / (total / 1e3), "stages": rows,
+    }
+
+
+def _parse_overrides(pairs: list[str]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for pair in pairs:
+        key, _, value = pair.partition("=")
+        if value in ("True", "False"):
+            out[key] = value == "True"
+        else:
+            try:
+                out[key] = int(value)
+            except ValueError:
+                out[key] = value
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robots", nargs="+", default=["Car", "Ant"])
+    parser.add_argument("--batch", type=int, default=16384)
+    parser.add_argument("--warm", type=int, default=10, help="env steps before timing")
+    parser.add_argument("--loops", type=int, default=10, help="stage applications per call")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--solver", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="Solver field overrides on top of the robot's default")
+    parser.add_argument("--out", required=True, help="JSON output path")
+    args = parser.parse_args()
+    overrides = _parse_overrides(args.solver)
+    device = jax.devices()[0]
+    meta = {
+        "device": f"{device.platform}: {device.device_kind}", "jax": jax.__version__,
+        "jaxlib": jaxlib.__version__, "mujoco": mujoco.__version__,
+        "python": platform.python_version(), "date": datetime.date.today().isoformat(),
+        "solver_overrides": overrides, "results": [],
+    }
+    for robot in args.robots:
+        start = time.perf_counter()
+        r = profile(robot, args.batch, args.warm, args.loops, args.repeats, overrides)
+        r["wall_s"] = time.perf_counter() - start
+        meta["results"].append(r)
+        with open(args.out, "w") as f:  # after each robot, so a timeout keeps what was measured
+            json.dump(meta, f, indent=1)
+        print(f"\n{robot}, batch {args.batch}, {r['contact_slots']} contact slots, "
+              f"{r['constraint_rows']} constraint rows, {r['forwards_per_env_step']} forward "
+              f"passes per env step; env step {r['stages']['env step']['ms']:.2f} ms = "
+              f"{r['env_steps_per_s']:,.0f} env-steps/s (no reset); {r['wall_s']:.0f} s")
+        print(f"| stage | ms per call | x per env step | share of env step | compile s |")
+        print("|---|---|---|---|---|")
+        for name, row in r["stages"].items():
+            print(f"| {name} | {row['ms']:.3f} | {row['count']:g} | {100 * row['share']:.1f}% | "
+                  f"{row['compile_s']:.1f} |")
+
+
+if __name__ == "__main__":
+    main()
