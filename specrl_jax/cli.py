@@ -221,7 +221,7 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
     "train",
     "Train a baseline (GenZ-LTL, DeepLTL or LTL2Action) with the shared PPO on any single-agent "
     "world; writes a run directory.",
-    arg("--method", required=True, choices=("genz", "deepltl", "ltl2action")),
+    arg("--method", required=True, choices=("genz", "deepltl", "ltl2action", "gcrl")),
     arg("--env", default="LetterLTL0-v0", help="any single-agent env ID (`specrl-jax envs`)"),
     arg("--seeds", type=positive_int, default=1, help="independent runs trained side by side"),
     arg("--seed", type=nonnegative_int, default=0, help="base seed of the runs (default 0)"),

@@ -21,12 +21,13 @@ import jax.numpy as jnp
 import numpy as np
 from flax import serialization
 
-from specrl_jax.baselines import deepltl, genz, ltl2action, runs
+from specrl_jax.baselines import deepltl, gcrl, genz, ltl2action, runs
 from specrl_jax.baselines.ppo import env_mesh, make_train
 from specrl_jax.envs.registry import make
 
-METHODS = {"genz": genz, "deepltl": deepltl, "ltl2action": ltl2action}
-METHOD_NAMES = {"genz": "GenZ-LTL", "deepltl": "DeepLTL", "ltl2action": "LTL2Action"}
+METHODS = {"genz": genz, "deepltl": deepltl, "ltl2action": ltl2action, "gcrl": gcrl}
+METHOD_NAMES = {"genz": "GenZ-LTL", "deepltl": "DeepLTL", "ltl2action": "LTL2Action",
+                "gcrl": "GCRL-LTL"}
 LETTER_SUITES = ("letter/finite/ind", "letter/finite/ood", "letter/infinite/rsp", "letter/infinite/rec")
 SUCCESS_LEVELS = (0.5, 0.8, 0.9, 0.95, 0.98)
 
@@ -97,8 +98,12 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     )
     wall = time.perf_counter() - start
     rows = runs.read_metrics(run_dir)
+    params = runner.params
+    finish = getattr(method_module(method), "finish_training", None)
+    if finish is not None:  # a second phase on the trained policy (GCRL-LTL's value function)
+        params = finish(method_obj, params, key_train, config, log)
     params_path = Path(run_dir) / "params.msgpack"
-    params_path.write_bytes(serialization.to_bytes(jax.device_get(runner.params)))
+    params_path.write_bytes(serialization.to_bytes(jax.device_get(params)))
     summary = {
         "method": method, "env": env_id, "num_seeds": num_seeds, "ppo": dataclasses.asdict(config),
         "env_steps_per_seed": rows[-1]["env_steps"] if rows else 0,
@@ -112,7 +117,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         "time_to_success": time_to_levels(rows),
     }
     (Path(run_dir) / "train_summary.json").write_text(json.dumps(summary, indent=1))
-    return runner.params, summary
+    return params, summary
 
 
 def time_to_levels(rows: Sequence[dict[str, Any]], levels: Sequence[float] = SUCCESS_LEVELS) -> dict[str, Any]:
@@ -130,7 +135,7 @@ def make_policy(method: str, world: Any, method_obj: Any, deterministic: bool | 
     mode actions; DeepLTL sampled actions on LetterWorld, mode actions on ZoneEnv)."""
     module = method_module(method)
     if deterministic is None:
-        deterministic = method == "genz" or world_family != "letter"
+        deterministic = method in ("genz", "gcrl") or world_family != "letter"
     return module.make_policy(method_obj.network, world.alphabet, world.obs_kinds,
                               deterministic=deterministic, **options)
 
@@ -166,6 +171,8 @@ def load_params(method: str, env_id: str, path: str | Path, num_seeds: int) -> A
     obs, _ = jax.eval_shape(method_obj.env.reset, jax.random.key(0), method_obj.init_task_params())
     one_obs = jax.tree.map(lambda x: jax.ShapeDtypeStruct((1, *x.shape), x.dtype), obs)
     one = jax.eval_shape(method_obj.network.init, jax.random.key(0), one_obs)
+    if hasattr(method_module(method), "param_shapes"):  # parameters beyond the PPO network's
+        one = method_module(method).param_shapes(method_obj, one)
     stored = serialization.msgpack_restore(Path(path).read_bytes())
     leaf = jax.tree.leaves(stored)[0]
     if num_seeds == 1 and np.ndim(leaf) == len(jax.tree.leaves(one)[0].shape):

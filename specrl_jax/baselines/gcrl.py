@@ -1,0 +1,442 @@
+"""GCRL-LTL (Qiu, Mao, Zhu, NeurIPS'23): a goal-conditioned policy, a goal-conditioned value
+function, and a value-weighted search over the automaton at test time.
+
+1. The policy reaches one proposition at a time. It reads the world observation and a fixed
+   random 24-d vector of its goal proposition; the net is the original's: a linear feature
+   layer as wide as its input, a shared ReLU trunk [512, 1024, 256], logits and value heads.
+   It trains with the shared PPO on the task loop with one-goal tasks (the one-step subgoal
+   source GenZ-LTL draws from, with no avoid set): reward 1 and the end of the episode on
+   entering the goal, 0 otherwise; other propositions are not penalised.
+2. The goal-conditioned value function (GCVF, `train_value_function`) regresses, from states of
+   the trained policy's successful trajectories (one in ten kept), the critic's value of every
+   other goal: input `state ++ vec(goal) ++ vec(other goal)`, MLP 4 x 1024 ReLU, L1 loss.
+3. At test time (`make_policy`) the path-graph search (`gcrl_search`) picks the next goal with
+   edge costs `1 - V` (critic for the first goal, GCVF for pairs), and the original's safety
+   rule composes the action when an avoided proposition looks closer than the goal.
+
+LetterWorld uses the project's grid encoder and the world's 4 moves. On ZoneEnv the original
+chooses among 4 frozen direction primitives; here the policy acts in the world's continuous
+action space directly (docs/fidelity.md).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping
+from typing import Any, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from specrl_jax.baselines import gcrl_search as search
+from specrl_jax.baselines.encoders import ImageCNN, check_kinds, obs_parts
+from specrl_jax.baselines.genz import subgoal_masks
+from specrl_jax.baselines.ppo.networks import (
+    DiscreteHead,
+    GaussianHead,
+    LetterCNN,
+    PolicyOutput,
+)
+from specrl_jax.baselines.ppo.rollout import reset_batch
+from specrl_jax.baselines.ppo.train import PPOConfig, world_config
+from specrl_jax.baselines.train_env import TaskTrainEnv
+from specrl_jax.specs import CurriculumSampler
+from specrl_jax.specs.curricula import Curriculum, GenZSubgoals, Stage
+from specrl_jax.tasks import SequenceSource, StatefulPolicy, TaskEnv
+
+GOAL_DIM = 24
+GOAL_SEED = 20231
+VALUE_THRESHOLD = 0.85
+#: one-goal training tasks: reach one proposition, avoid nothing, uniformly over propositions
+REACH_ONE = Curriculum("gcrl/reach", (Stage((GenZSubgoals(max_avoid=0),)),))
+
+
+def goal_vectors(num_props: int) -> np.ndarray:
+    """float32[P, 24]: the fixed goal vector of each proposition (uniform in [-1, 1), drawn once
+    from a fixed seed; the original hard-codes its own random numbers)."""
+    return np.random.default_rng(GOAL_SEED).uniform(-1, 1, (num_props, GOAL_DIM)).astype(np.float32)
+
+
+class GoalObs(NamedTuple):
+    """What the GCRL network reads (one env; leading batch axes allowed): `parts` the world
+    observation as encoder parts (`encoders.obs_parts`), `goal` float32[24] the goal's vector,
+    `goal_index` int32[] the goal proposition (not read by the network)."""
+
+    parts: dict
+    goal: jax.Array
+    goal_index: jax.Array
+
+
+def dense(features: int, gain: float) -> nn.Dense:
+    return nn.Dense(features, kernel_init=nn.initializers.orthogonal(gain))
+
+
+class GoalEncoder(nn.Module):
+    """Grid parts -> the LetterWorld CNN, images -> the camera CNN, vectors as they are (the
+    original feeds the raw sensor vector); concatenated in the order grid, vector, image."""
+
+    @nn.compact
+    def __call__(self, parts: Mapping[str, jax.Array]) -> jax.Array:
+        out = []
+        if "grid" in parts:
+            out.append(LetterCNN()(parts["grid"]))
+        if "vector" in parts:
+            out.append(parts["vector"].astype(jnp.float32))
+        if "image" in parts:
+            out.append(ImageCNN()(parts["image"]))
+        return jnp.concatenate(out, axis=-1)
+
+
+class GCRLNetwork(nn.Module):
+    """Observation ++ goal vector -> linear features (as wide as the input) -> shared trunk
+    [512, 1024, 256] ReLU -> logits (or a Gaussian) and value. SB3's orthogonal init: gain
+    sqrt(2) hidden, 0.01 logits, 1 value."""
+
+    num_actions: int  # discrete actions, or the action dimension when `continuous`
+    continuous: bool = False
+    trunk: tuple[int, ...] = (512, 1024, 256)
+
+    @nn.compact
+    def __call__(self, obs: GoalObs) -> PolicyOutput:
+        x = jnp.concatenate([GoalEncoder()(obs.parts), obs.goal.astype(jnp.float32)], axis=-1)
+        x = dense(x.shape[-1], np.sqrt(2))(x)
+        for width in self.trunk:
+            x = nn.relu(dense(width, np.sqrt(2))(x))
+        pi = GaussianHead(self.num_actions)(x) if self.continuous else DiscreteHead(self.num_actions)(x)
+        value = dense(1, 1.0)(x)[..., 0]
+        zeros = jnp.zeros_like(value)
+        return PolicyOutput(pi, value, zeros, zeros)
+
+
+class ValueFunction(nn.Module):
+    """The GCVF: MLP [1024] x 4 ReLU -> 1 on `state ++ vec(g1) ++ vec(g2)`."""
+
+    features: tuple[int, ...] = (1024, 1024, 1024, 1024)
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        for width in self.features:
+            x = nn.relu(nn.Dense(width)(x))
+        return nn.Dense(1)(x)[..., 0]
+
+
+def flat_state(parts: Mapping[str, jax.Array]) -> jax.Array:
+    """float32[D]: the encoder parts flattened and concatenated (sorted by name), the GCVF's
+    state input."""
+    return jnp.concatenate([parts[k].astype(jnp.float32).reshape(-1) for k in sorted(parts)])
+
+
+def network_for(world: Any, trunk: tuple[int, ...] = (512, 1024, 256)) -> GCRLNetwork:
+    """The GCRL network for a world's action space."""
+    check_kinds(world.obs_kinds)
+    space = world.action_space
+    if hasattr(space, "n"):
+        return GCRLNetwork(int(space.n), trunk=trunk)
+    return GCRLNetwork(int(space.shape[0]), continuous=True, trunk=trunk)
+
+
+@dataclasses.dataclass(frozen=True)
+class GCRL:
+    """The GCRL-LTL method for the shared trainer: the task loop with one-goal tasks."""
+
+    env: TaskTrainEnv
+    network: GCRLNetwork
+    family: str = "letter"
+    value_network: ValueFunction = ValueFunction()
+
+    def init_task_params(self) -> Any:
+        return self.env.task.source.init_params()
+
+    def update_task_params(self, task_params: Any, stats: dict[str, jax.Array]) -> Any:
+        return task_params
+
+
+def make_method(world: Any, params: Any, family: str = "letter",
+                trunk: tuple[int, ...] = (512, 1024, 256),
+                value_features: tuple[int, ...] = (1024,) * 4) -> GCRL:
+    """GCRL-LTL on any single-agent world: one-goal tasks over the world's propositions."""
+    network = network_for(world, trunk)
+    alphabet = jnp.asarray(world.alphabet, bool)
+    goals = jnp.asarray(goal_vectors(world.num_propositions))
+    source = SequenceSource(CurriculumSampler(REACH_ONE, world.num_propositions), alphabet)
+    kinds = dict(world.obs_kinds)
+
+    def observe(obs, state):
+        reach, _ = subgoal_masks(state.task, alphabet)
+        goal = jnp.argmax(reach).astype(jnp.int32)
+        return GoalObs(obs_parts(obs, kinds), goals[goal], goal)
+
+    def signals(info):
+        reward = info["success"].astype(jnp.float32)
+        return reward, jnp.zeros((), jnp.float32), jnp.zeros((), bool)
+
+    task = TaskEnv(world, source, observe)
+    return GCRL(TaskTrainEnv(task, params, signals), network, family, ValueFunction(value_features))
+
+
+def summarise(row: dict[str, float]) -> dict[str, float]:
+    episodes = max(row["episodes"], 1.0)
+    return {**row, "success_rate": row["successes"] / episodes}
+
+
+def ppo_config(world: str = "letter", **overrides: Any) -> PPOConfig:
+    """The world's shared shapes and discount with GCRL-LTL's SB3 settings: 10 epochs, GAE 0.95,
+    clip 0.2 without value clipping, value coefficient 0.5, normalised advantages, Adam eps 1e-5,
+    lr 3e-4."""
+    return world_config(world, {"update_epochs": 10, "loss": "ppo", "vf_coef": 0.5,
+                                "gae_lambda": 0.95, "lr": 3e-4, "adam_eps": 1e-5,
+                                "clip_value": False, "normalize_advantages": True}, **overrides)
+
+
+# ---------------------------------------------------------------------------------------------
+# The goal-conditioned value function, from rollouts of the trained policy
+
+
+@dataclasses.dataclass(frozen=True)
+class ValueConfig:
+    """GCVF data and regression settings (the original: keep 1 in 10 successful trajectories,
+    batch 512, Adam 4e-4, L1 loss)."""
+
+    num_envs: int = 128
+    num_steps: int = 256
+    keep_prob: float = 0.1
+    batch_size: int = 512
+    num_updates: int = 10_000
+    lr: float = 4e-4
+
+    def __post_init__(self) -> None:
+        for name in ("num_envs", "num_steps", "batch_size", "num_updates"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
+        if not 0.0 < self.keep_prob <= 1.0:
+            raise ValueError(f"keep_prob must be in (0, 1], got {self.keep_prob!r}")
+
+
+class ValueData(NamedTuple):
+    """The GCVF dataset: `state` float32[N, D], `goal` int32[N] the goal being pursued,
+    `label` float32[N, P] the critic's value of each goal there, `valid` bool[N, P] the pair is
+    a sample (kept successful trajectory, other goal)."""
+
+    state: jax.Array
+    goal: jax.Array
+    label: jax.Array
+    valid: jax.Array
+
+
+def collect_value_data(method: GCRL, policy_params: Any, key: jax.Array, cfg: ValueConfig) -> ValueData:
+    """Roll the trained policy (sampled actions) in `cfg.num_envs` envs for `cfg.num_steps` steps
+    and label the states of the trajectories that reached their goal (each kept with
+    probability `keep_prob`) with the critic's value of every other goal."""
+    env, network = method.env, method.network
+    goals = jnp.asarray(goal_vectors(env.task.env.num_propositions))
+    num_goals = goals.shape[0]
+    key_reset, key_run, key_keep = jax.random.split(key, 3)
+    task_params = method.init_task_params()
+    obs, state = reset_batch(env, key_reset, cfg.num_envs, task_params)
+    step_batch = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+
+    def one_step(carry, key_step):
+        state, obs = carry
+        key_action, key_env = jax.random.split(key_step)
+        action = network.apply(policy_params, obs).pi.sample(key_action)
+        next_obs, state, result = step_batch(jax.random.split(key_env, cfg.num_envs), state,
+                                             action, task_params)
+        values = jax.vmap(lambda g: network.apply(policy_params, obs._replace(
+            goal=jnp.broadcast_to(goals[g], obs.goal.shape))).value)(jnp.arange(num_goals))
+        record = (jax.vmap(flat_state)(obs.parts), obs.goal_index, values.T,
+                  result.stats["_success"], result.stats["_finished"])
+        return (state, next_obs), record
+
+    _, (states, goal, label, success, done) = jax.lax.scan(
+        one_step, (state, obs), jax.random.split(key_run, cfg.num_steps))
+    draw = jax.random.uniform(key_keep, done.shape)
+
+    def backward(carry, xs):  # does this step's episode end in success, and its keep draw
+        ahead, u = carry
+        success_t, done_t, draw_t = xs
+        ahead = success_t | (~done_t & ahead)
+        u = jnp.where(done_t, draw_t, u)
+        return (ahead, u), ahead & (u < cfg.keep_prob)
+
+    init = (jnp.zeros(cfg.num_envs, bool), draw[-1])
+    _, keep = jax.lax.scan(backward, init, (success, done, draw), reverse=True)
+    valid = keep[..., None] & (goal[..., None] != jnp.arange(num_goals))
+    flat = lambda x: x.reshape(-1, *x.shape[2:])
+    return ValueData(flat(states), flat(goal), flat(label), flat(valid))
+
+
+def fit_value_function(method: GCRL, data: ValueData, key: jax.Array, cfg: ValueConfig
+                       ) -> tuple[Any, jax.Array]:
+    """L1 regression of the GCVF on `data`, minibatches drawn with replacement from the valid
+    pairs. Returns `(params, loss float32[num_updates])` (all losses 0 without data)."""
+    goals = jnp.asarray(goal_vectors(data.label.shape[1]))
+    num_goals = goals.shape[0]
+    valid = data.valid.reshape(-1)
+    order = jnp.argsort(~valid, stable=True)  # the valid pairs first
+    count = jnp.sum(valid)
+    net = method.value_network
+
+    def inputs(pair):
+        row, other = pair // num_goals, pair % num_goals
+        x = jnp.concatenate([data.state[row], goals[data.goal[row]], goals[other]], axis=-1)
+        return x, data.label[row, other]
+
+    key_init, key_run = jax.random.split(key)
+    params = net.init(key_init, inputs(jnp.zeros(1, jnp.int32))[0])
+    optimizer = optax.adam(cfg.lr)
+
+    def update(carry, key_batch):
+        params, opt_state = carry
+        pick = jax.random.randint(key_batch, (cfg.batch_size,), 0, jnp.maximum(count, 1))
+        x, y = inputs(order[pick])
+
+        def loss_of(p):
+            return jnp.mean(jnp.abs(net.apply(p, x) - y)) * (count > 0)
+
+        loss, grads = jax.value_and_grad(loss_of)(params)
+        updates, opt_state = optimizer.update(grads, opt_state, params)
+        return (optax.apply_updates(params, updates), opt_state), loss
+
+    (params, _), losses = jax.lax.scan(update, (params, optimizer.init(params)),
+                                       jax.random.split(key_run, cfg.num_updates))
+    return params, losses
+
+
+def train_value_function(method: GCRL, policy_params: Any, key: jax.Array,
+                         cfg: ValueConfig = ValueConfig()) -> tuple[Any, dict[str, jax.Array]]:
+    """Collect the dataset with the trained policy and fit the GCVF (jit/vmap-able)."""
+    key_data, key_fit = jax.random.split(key)
+    data = collect_value_data(method, policy_params, key_data, cfg)
+    params, losses = fit_value_function(method, data, key_fit, cfg)
+    tail = max(1, cfg.num_updates // 10)
+    return params, {"samples": jnp.sum(data.valid), "loss_first": losses[:tail].mean(),
+                    "loss_last": losses[-tail:].mean()}
+
+
+def value_config(method: GCRL, total_timesteps: int) -> ValueConfig:
+    """GCVF settings for a run of `total_timesteps` PPO steps: one regression step per 1,500
+    training steps, at most 10,000 (15M steps: 10,000); rollouts as long as the world's
+    horizon (at least 256 steps) so that trajectories complete."""
+    horizon = int(method.env.params.max_steps)
+    return ValueConfig(num_steps=max(256, horizon),
+                       num_updates=int(min(10_000, max(1, total_timesteps // 1500))))
+
+
+def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig,
+                    log: Callable[[str], None] = print) -> dict[str, Any]:
+    """After PPO: train each seed's GCVF (leading seed axis on `params`); returns
+    `{"policy": params, "gcvf": gcvf params}`, what `make_policy` reads."""
+    cfg = value_config(method, config.total_timesteps)
+    num_seeds = jax.tree.leaves(params)[0].shape[0]
+    keys = jax.random.split(jax.random.fold_in(key, 15), num_seeds)
+    train = jax.jit(jax.vmap(lambda p, k: train_value_function(method, p, k, cfg)))
+    gcvf, stats = jax.device_get(train(params, keys))
+    log(f"GCVF: {cfg.num_updates} updates on {[int(s) for s in stats['samples']]} samples per "
+        f"seed; L1 loss {np.round(stats['loss_first'], 4).tolist()} -> "
+        f"{np.round(stats['loss_last'], 4).tolist()}")
+    return {"policy": params, "gcvf": gcvf}
+
+
+def param_shapes(method: GCRL, policy_shapes: Any) -> dict[str, Any]:
+    """The shapes of `finish_training`'s parameters for one seed, from the policy's."""
+    obs, _ = jax.eval_shape(method.env.reset, jax.random.key(0), method.init_task_params())
+    width = sum(int(np.prod(x.shape)) for x in jax.tree.leaves(obs.parts)) + 2 * GOAL_DIM
+    gcvf = jax.eval_shape(method.value_network.init, jax.random.key(0),
+                          jax.ShapeDtypeStruct((1, width), jnp.float32))
+    return {"policy": policy_shapes, "gcvf": gcvf}
+
+
+# ---------------------------------------------------------------------------------------------
+# Test time: search for the next goal, act with the safety rule
+
+
+class GCRLCarry(NamedTuple):
+    q: jax.Array  # int32[], automaton state the plan was made in (-1: none yet)
+    last: jax.Array  # int32[], the last goal reached (P: none)
+    goal: jax.Array  # int32[], the proposition pursued (-1: none needed)
+    slot: jax.Array  # int32[], epsilon edge the plan takes first (-1: none)
+    avoid: jax.Array  # bool[P], propositions leading to a violation from q
+    to_go: jax.Array  # float32[N], the search's cost to go (episode's first observation)
+
+
+def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str, str],
+                deterministic: bool = True, value_threshold: float = VALUE_THRESHOLD,
+                omega: float = search.OMEGA,
+                value_network: nn.Module = ValueFunction()) -> StatefulPolicy:
+    """GCRL-LTL's test-time agent as a `StatefulPolicy`; params `{"policy", "gcvf"}`.
+
+    At the episode's start the value map is read off the first observation (critic V(s, p) for
+    every goal, GCVF for every pair) and the search's cost to go computed once. Whenever the
+    automaton state changes or the goal is reached, the next step of the cheapest plan is chosen
+    with the current critic values: a goal proposition, or an epsilon edge to take. Avoided
+    propositions are those leading from the automaton state to a violation. Each step: if some
+    avoided p has `V(s, p) > value_threshold` and above the goal's value, the action turns away
+    from the most dangerous one (discrete: the goal's best action other than the one most likely
+    toward it; continuous: the goal's mean action minus the danger's, clipped); otherwise the
+    goal's mode (`deterministic`, the original's) or a sample. With no goal needed the agent
+    moves away from the most dangerous avoided proposition.
+    """
+    alphabet_np = np.asarray(alphabet, bool)
+    num_props = alphabet_np.shape[1]
+    goals = jnp.asarray(goal_vectors(num_props))
+    rows_np, empty = search.goal_symbols(alphabet_np)
+    rows, alphabet = jnp.asarray(rows_np), jnp.asarray(alphabet_np)
+    kinds = dict(obs_kinds)
+
+    def all_goals(params, parts):
+        batch = GoalObs(jax.tree.map(lambda x: jnp.broadcast_to(x, (num_props, *x.shape)), parts),
+                        goals, jnp.arange(num_props, dtype=jnp.int32))
+        return network.apply(params["policy"], batch)
+
+    def init(params, obs, task_state, key):
+        parts = obs_parts(obs, kinds)
+        start = all_goals(params, parts).value
+        state = jnp.broadcast_to(flat_state(parts), (num_props, num_props, flat_state(parts).shape[0]))
+        pairs = jnp.concatenate([state, jnp.broadcast_to(goals[:, None], (num_props, num_props, GOAL_DIM)),
+                                 jnp.broadcast_to(goals[None], (num_props, num_props, GOAL_DIM))], -1)
+        pair_values = value_network.apply(params["gcvf"], pairs)
+        costs = search.cost_matrix(start, pair_values)
+        to_go = search.cost_to_go(task_state.spec, costs, rows, empty, omega)
+        minus = jnp.full((), -1, jnp.int32)
+        return GCRLCarry(minus, jnp.int32(num_props), minus, minus, jnp.zeros(num_props, bool), to_go)
+
+    def replan(out, task_state, carry, last):
+        spec, q = task_state.spec, task_state.q
+        first_cost = search.cost_matrix(out.value, jnp.zeros((num_props, num_props)))[num_props]
+        step = search.first_step(spec, q, last, first_cost, carry.to_go, rows, empty)
+        nxt = spec.delta[q, jnp.maximum(rows, 0)]
+        avoid = (rows >= 0) & spec.violation[nxt]
+        return GCRLCarry(q, last, step.goal, step.slot, avoid, carry.to_go)
+
+    def act(out, carry, key):
+        goal = jnp.maximum(carry.goal, 0)
+        danger = jnp.where(carry.avoid, out.value, -jnp.inf)
+        worst = jnp.argmax(danger)
+        has_goal = carry.goal >= 0
+        turn = (danger[worst] > value_threshold) & ((danger[worst] > out.value[goal]) | ~has_goal)
+        pi = jax.tree.map(lambda x: x[goal], out.pi)
+        chosen = pi.mode() if deterministic else pi.sample(key)
+        if network.continuous:
+            away = jnp.clip(out.pi.mean[goal] * has_goal - out.pi.mean[worst], -1.0, 1.0)
+        else:
+            toward = jnp.argmax(out.pi.logits[worst])
+            masked = jnp.where(jnp.arange(out.pi.logits.shape[-1]) == toward, -jnp.inf,
+                               out.pi.logits[goal])
+            away = jnp.where(has_goal, jnp.argmax(masked), jnp.argmin(out.pi.logits[worst]))
+        return jnp.where(turn, away, chosen).astype(chosen.dtype)
+
+    def apply(params, obs, task_state, carry: GCRLCarry, key):
+        out = all_goals(params, obs_parts(obs, kinds))
+        label = task_state.propositions
+        single = jnp.sum(label) == 1
+        last = jnp.where(single, jnp.argmax(label), carry.last).astype(jnp.int32)
+        reached = (carry.goal >= 0) & label[jnp.maximum(carry.goal, 0)]
+        moved = task_state.q != carry.q
+        carry = jax.lax.cond(moved | reached, lambda: replan(out, task_state, carry, last),
+                             lambda: carry._replace(last=last))
+        return (act(out, carry, key), carry.slot), carry
+
+    return StatefulPolicy(init, apply)
