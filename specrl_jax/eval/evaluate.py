@@ -156,13 +156,15 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
 def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, params: Any,
                    episodes_per_seed: int, horizon: int | None = None,
                    sequential_seeds: bool = False, original: Any = None,
-                   devices: Sequence[Any] | None = None
+                   devices: Sequence[Any] | None = None, params_per_seed: bool = False
                    ) -> Callable[[Any, jax.Array], EpisodeTable]:
     """A jitted `fn(policy_params, seeds uint32[num_seeds]) -> EpisodeTable` (device arrays,
     fields `[num_seeds, K, episodes_per_seed]`); compile once, call many times.
 
     `sequential_seeds` runs the seeds one after the other (`lax.map`) instead of side by side,
-    dividing peak memory by `num_seeds`, for runs too large for one device. `original`: the
+    dividing peak memory by `num_seeds`, for runs too large for one device. With
+    `params_per_seed`, `policy_params` has a leading `num_seeds` axis whose entry i serves seed i
+    (one trained run per seed). `original`: the
     original's automata of the K specs (`original_ldba.stack_ldbas`), counted beside ours
     (`EpisodeTable.num_accepting_original`). Memory holds each episode's running state only,
     whatever the horizon.
@@ -190,10 +192,15 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
     def evaluator(policy_params, seeds):
         episodes = jax.lax.with_sharding_constraint(jnp.arange(padded), on_devices)
 
-        def one_seed(seed):
-            return per_spec(policy_params, seed, jnp.arange(num_specs), episodes)
+        def one_seed(seed_params, seed):
+            return per_spec(seed_params, seed, jnp.arange(num_specs), episodes)
 
-        table = jax.lax.map(one_seed, seeds) if sequential_seeds else jax.vmap(one_seed)(seeds)
+        if not sequential_seeds:
+            table = jax.vmap(one_seed, in_axes=(0 if params_per_seed else None, 0))(policy_params, seeds)
+        elif params_per_seed:
+            table = jax.lax.map(lambda pair: one_seed(*pair), (policy_params, seeds))
+        else:
+            table = jax.lax.map(lambda seed: one_seed(policy_params, seed), seeds)
         return jax.tree.map(lambda x: x[:, :, :episodes_per_seed], table)
 
     return evaluator

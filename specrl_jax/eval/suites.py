@@ -86,17 +86,13 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
             [automata.compile_spec(f, env.propositions, alphabet=env.alphabet) for f in formulas])
         run_params = params.replace(max_steps=steps)
         evaluator = make_evaluator(policy, TaskEnv(env, compiled), run_params,
-                                   episodes_per_seed=episodes, original=originals(formulas, env))
-        tables = []
-        for i, seed in enumerate(seeds):
-            start = time.perf_counter()
-            seed_params = (jax.tree.map(lambda x, i=i: x[i], policy_params) if params_per_seed
-                           else policy_params)
-            tables.append(jax.device_get(evaluator(seed_params, jnp.asarray([seed], jnp.uint32))))
-            log(f"evaluated seed {seed}: {len(formulas)} specs x {episodes} episodes x {steps} "
-                f"steps in {time.perf_counter() - start:.1f}s")
-        table = EpisodeTable(*(None if parts[0] is None else np.concatenate(parts, axis=0)
-                               for parts in zip(*tables)))
+                                   episodes_per_seed=episodes, original=originals(formulas, env),
+                                   params_per_seed=params_per_seed)
+        start = time.perf_counter()
+        table = EpisodeTable(*(None if x is None else np.asarray(x) for x in jax.device_get(
+            evaluator(policy_params, jnp.asarray(seeds, jnp.uint32)))))
+        log(f"evaluated {len(seeds)} seeds x {len(formulas)} specs x {episodes} episodes x "
+            f"{steps} steps in {time.perf_counter() - start:.1f}s (compile included)")
         result = EvalResult(
             env_id=env_id, spec_names=tuple(formulas), is_finite=np.asarray(compiled.is_finite),
             seeds=tuple(int(s) for s in seeds), episodes_per_seed=episodes, horizon=steps,

@@ -13,7 +13,7 @@ from eval.tiny_world import (
     stack_specs,
 )
 
-from specrl_jax.eval.evaluate import evaluate, record_episodes
+from specrl_jax.eval.evaluate import evaluate, make_evaluator, record_episodes
 from specrl_jax.tasks.policy import StatefulPolicy, random_policy, split_action
 from specrl_jax.tasks import TaskEnv
 
@@ -84,6 +84,26 @@ def test_stateful_policy_carry_restarts_every_episode():
     stateful = evaluate(counter, (ENV, PARAMS), SPECS, seeds=[5], episodes_per_seed=8)
     for a, b in zip(pure.table, stateful.table):
         np.testing.assert_array_equal(a, b)
+
+
+def test_per_seed_parameters_in_one_call_equal_one_call_per_seed():
+    """One trained run per seed: entry i of the parameters serves seed i, side by side or in
+    sequence, exactly as evaluating each seed alone with its own parameters."""
+    def move(params, obs, task_state, key):
+        return jnp.where(task_state.time < params, RIGHT, DOWN)
+
+    per_seed = jnp.asarray([0, 3], jnp.int32)
+    seeds = jnp.asarray([4, 9], jnp.uint32)
+    task = TaskEnv(ENV, SPECS)
+    for sequential in (False, True):
+        evaluator = make_evaluator(move, task, PARAMS, 8, sequential_seeds=sequential,
+                                   params_per_seed=True)
+        together = evaluator(per_seed, seeds)
+        for i in range(2):
+            alone = make_evaluator(move, task, PARAMS, 8)(per_seed[i], seeds[i:i + 1])
+            np.testing.assert_array_equal(together.steps[i], alone.steps[0])
+            np.testing.assert_array_equal(together.success[i], alone.success[0])
+    assert not np.array_equal(together.steps[0], together.steps[1])
 
 
 def test_epsilon_actions_from_the_policy():
