@@ -318,10 +318,12 @@ def train_value_function(method: GCRL, policy_params: Any, key: jax.Array,
 
 def value_config(method: GCRL, total_timesteps: int) -> ValueConfig:
     """GCVF settings for a run of `total_timesteps` PPO steps: one regression step per 1,500
-    training steps, at most 10,000 (15M steps: 10,000); rollouts as long as the world's
-    horizon (at least 256 steps) so that trajectories complete."""
+    training steps, at most 10,000 (15M steps: 10,000); one rollout env per 100,000 training
+    steps, between 8 and 128; rollouts as long as the world's horizon (at least 256 steps) so
+    that trajectories complete."""
     horizon = int(method.env.params.max_steps)
-    return ValueConfig(num_steps=max(256, horizon),
+    return ValueConfig(num_envs=int(min(128, max(8, total_timesteps // 100_000))),
+                       num_steps=max(256, horizon),
                        num_updates=int(min(10_000, max(1, total_timesteps // 1500))))
 
 
