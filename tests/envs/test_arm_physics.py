@@ -111,3 +111,26 @@ def test_tracking_gains_match_the_original_under_random_actions(physics):
     assert np.abs(np.array(gains) - [0.61, 0.50, 0.82, 0.82, 0.86, 0.877, 0.878]).max() < 0.05, gains
     # joints 1 and 2 lag (torque-limited); ours lag more on joint 2 (docs/fidelity.md)
     assert abs(lags[0] - 0.21) < 0.1 and 0.05 < lags[1] < 0.4 and np.abs(lags[2:]).max() < 0.05, lags
+
+
+def test_chain_kinematics_matches_mujoco_c():
+    """The arm's own forward kinematics (used instead of MJX's, see arm/kinematics.py) against
+    MuJoCo C's mj_kinematics on random joint angles: every frame, COM frame, geom and site."""
+    from specrl_jax.envs.arm.kinematics import ChainKinematics
+    from specrl_jax.envs.zone.mjx_import import mjx
+
+    model = arm_model.load_model()
+    chain = ChainKinematics(model)
+    template = mjx.make_data(mjx.put_model(model, impl="jax"))
+    fill = jax.jit(jax.vmap(lambda q: chain.fill(template.replace(qpos=q))))
+    rng = np.random.default_rng(3)
+    qs = rng.uniform(model.jnt_range[:, 0], model.jnt_range[:, 1], (4, 7))
+    ours = fill(jnp.asarray(qs, jnp.float32))
+    data = mujoco.MjData(model)
+    for i, q in enumerate(qs):
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        for name in ("xpos", "xquat", "xmat", "xanchor", "xaxis", "xipos", "ximat", "geom_xpos",
+                     "geom_xmat", "site_xpos", "site_xmat"):
+            ref = getattr(data, name).reshape(np.shape(getattr(ours, name))[1:])
+            assert np.abs(np.asarray(getattr(ours, name)[i]) - ref).max() < 2e-5, name

@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 from flax import struct
 
+from specrl_jax.envs.arm.kinematics import ChainKinematics
 from specrl_jax.envs.zone.mjx_import import mjx
 
 SUBSTEPS = 20
@@ -81,6 +82,7 @@ class Physics:
         self.substeps = substeps
         self.force_limit = np.asarray(force_limit, np.float32)
         self._template = mjx.make_data(self.model)
+        self.kinematics = ChainKinematics(model)
         self._has_constraints = self._template._impl.efc_J.size > 0
 
     def init(self, qpos: jax.Array) -> PhysicsState:
@@ -90,12 +92,21 @@ class Physics:
     def data(self, state: PhysicsState) -> mjx.Data:
         """MJX data with kinematics (link poses, COM) computed at `state`."""
         data = self._template.replace(qpos=state.qpos, qvel=state.qvel)
-        return mjx.com_pos(self.model, mjx.kinematics(self.model, data))
+        return mjx.com_pos(self.model, self.kinematics.fill(data))
+
+    def position_stage(self, data: mjx.Data) -> mjx.Data:
+        """`mjx.fwd_position` with the chain's own kinematics (ChainKinematics says why); the
+        stages this model lacks (cameras, lights, tendons) are left out."""
+        m = self.model
+        data = mjx.com_pos(m, self.kinematics.fill(data))
+        data = mjx.factor_m(m, mjx.crb(m, data))
+        data = mjx.make_constraint(m, mjx.collision(m, data))
+        return mjx.transmission(m, data)
 
     def substep(self, data: mjx.Data, target: jax.Array) -> mjx.Data:
         """One physics step of h = model timestep toward joint targets `target` ([7], rad)."""
         m = self.model
-        data = mjx.fwd_velocity(m, mjx.fwd_position(m, data))
+        data = mjx.fwd_velocity(m, self.position_stage(data))
         mass = mjx.full_m(m, data)
         free_accel = jnp.linalg.solve(mass, data.qfrc_passive - data.qfrc_bias)
         h = float(self.mj_model.opt.timestep)
