@@ -28,7 +28,7 @@ import numpy as np
 from flax import serialization
 
 import specrl_jax
-from specrl_jax.baselines import deepltl, genz
+from specrl_jax.baselines import deepltl, gcrl, genz
 from specrl_jax.baselines.encoders import obs_parts
 from specrl_jax.eval.report import to_dict
 from specrl_jax.eval.suites import evaluate_suites
@@ -39,7 +39,7 @@ RESULTS = Path(__file__).resolve().parent / "results"
 SINGLE_ENV = "PointLTL0-v0"
 SUITES = tuple(f"multi_agent_zone/{k}" for k in (
     "finite/indep", "finite/coop", "finite/mix", "infinite/rsp", "infinite/rec", "infinite/per"))
-MODULES = {"genz": genz, "deepltl": deepltl}
+MODULES = {"genz": genz, "deepltl": deepltl, "gcrl": gcrl}
 
 
 def load_single_agent(method: str, path: Path) -> tuple[Any, Any]:
@@ -51,6 +51,8 @@ def load_single_agent(method: str, path: Path) -> tuple[Any, Any]:
     obs, _ = jax.eval_shape(method_obj.env.reset, jax.random.key(0), method_obj.init_task_params())
     one_obs = jax.tree.map(lambda x: jax.ShapeDtypeStruct((1, *x.shape), x.dtype), obs)
     shapes = jax.eval_shape(method_obj.network.init, jax.random.key(0), one_obs)
+    if hasattr(module, "param_shapes"):  # GCRL-LTL: {"policy", "gcvf"}
+        shapes = module.param_shapes(method_obj, shapes)
     template = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), shapes)
     params = serialization.from_bytes(template, path.read_bytes())
     return method_obj.network, jax.device_put(params)
@@ -103,7 +105,7 @@ def main() -> None:
     for name in args.suites:
         for formula in specs.suite(name):
             check_spec_agents(formula, env)
-    builders = {"genz": genz_agent, "deepltl": deepltl_agent}
+    builders = {"genz": genz_agent, "deepltl": deepltl_agent, "gcrl": gcrl.coordinator_agent}
     results, timing = [], {}
     for method in args.methods:
         network, params = load_single_agent(

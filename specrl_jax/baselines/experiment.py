@@ -86,6 +86,9 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     if map_bank and family(env_id) == "letter":
         log(f"building a bank of {map_bank:,} exactly sampled maps for training resets ...")
     _world, _params, method_obj, config = build(method, env_id, ppo_overrides, map_bank, key_bank)
+    prepare = getattr(method_module(method), "prepare_training", None)
+    if prepare is not None:  # a first phase before PPO (GCRL-LTL's direction primitives)
+        method_obj = prepare(method_obj, key_train, config, log)
     setup = time.perf_counter() - start
     log(f"set up {env_id} in {setup:.1f}s; compiling the training step (the first chunk includes it)")
     mesh = env_mesh(list(devices) if devices is not None else None)

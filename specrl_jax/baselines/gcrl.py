@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from specrl_jax.baselines import gcrl_primitives as primitives_lib
 from specrl_jax.baselines import gcrl_search as search
 from specrl_jax.baselines.encoders import ImageCNN, check_kinds, obs_parts
 from specrl_jax.baselines.genz import subgoal_masks
@@ -98,6 +99,7 @@ class GCRLNetwork(nn.Module):
     num_actions: int  # discrete actions, or the action dimension when `continuous`
     continuous: bool = False
     trunk: tuple[int, ...] = (512, 1024, 256)
+    primitive_sensors: int = 0  # > 0: the actions are direction primitives on this many sensors
 
     @nn.compact
     def __call__(self, obs: GoalObs) -> PolicyOutput:
@@ -129,13 +131,23 @@ def flat_state(parts: Mapping[str, jax.Array]) -> jax.Array:
     return jnp.concatenate([parts[k].astype(jnp.float32).reshape(-1) for k in sorted(parts)])
 
 
-def network_for(world: Any, trunk: tuple[int, ...] = (512, 1024, 256)) -> GCRLNetwork:
-    """The GCRL network for a world's action space."""
+def network_for(world: Any, trunk: tuple[int, ...] = (512, 1024, 256),
+                hierarchical: bool = False) -> GCRLNetwork:
+    """The GCRL network for a world's action space; `hierarchical`: logits over the 4 direction
+    primitives of a robot world (`gcrl_primitives`)."""
     check_kinds(world.obs_kinds)
     space = world.action_space
+    if hierarchical:
+        return GCRLNetwork(len(primitives_lib.DIRECTIONS), trunk=trunk,
+                           primitive_sensors=int(world.robot.ego_size))
     if hasattr(space, "n"):
         return GCRLNetwork(int(space.n), trunk=trunk)
     return GCRLNetwork(int(space.shape[0]), continuous=True, trunk=trunk)
+
+
+def uses_primitives(world: Any, family: str) -> bool:
+    """Robot worlds of the Zone family act through direction primitives (the original's)."""
+    return family == "zone" and not hasattr(world.action_space, "n")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,6 +158,8 @@ class GCRL:
     network: GCRLNetwork
     family: str = "letter"
     value_network: ValueFunction = ValueFunction()
+    world: Any = None  # the world itself (`env.task.env` wraps it with primitives)
+    primitives: Any = None  # the frozen primitives' parameters (leading axis 4), or None
 
     def init_task_params(self) -> Any:
         return self.env.task.source.init_params()
@@ -156,9 +170,15 @@ class GCRL:
 
 def make_method(world: Any, params: Any, family: str = "letter",
                 trunk: tuple[int, ...] = (512, 1024, 256),
-                value_features: tuple[int, ...] = (1024,) * 4) -> GCRL:
-    """GCRL-LTL on any single-agent world: one-goal tasks over the world's propositions."""
-    network = network_for(world, trunk)
+                value_features: tuple[int, ...] = (1024,) * 4, primitives: Any = None) -> GCRL:
+    """GCRL-LTL on any single-agent world: one-goal tasks over the world's propositions. Zone
+    robots act through the 4 direction primitives `primitives` (untrained placeholders when
+    None: `prepare_training` trains them)."""
+    hierarchical = uses_primitives(world, family)
+    network = network_for(world, trunk, hierarchical)
+    if hierarchical and primitives is None:
+        primitives = primitives_lib.init_primitives(world, jax.random.key(0))
+    acting = primitives_lib.PrimitiveWorld(world, primitives) if hierarchical else world
     alphabet = jnp.asarray(world.alphabet, bool)
     goals = jnp.asarray(goal_vectors(world.num_propositions))
     source = SequenceSource(CurriculumSampler(REACH_ONE, world.num_propositions), alphabet)
@@ -173,8 +193,9 @@ def make_method(world: Any, params: Any, family: str = "letter",
         reward = info["success"].astype(jnp.float32)
         return reward, jnp.zeros((), jnp.float32), jnp.zeros((), bool)
 
-    task = TaskEnv(world, source, observe)
-    return GCRL(TaskTrainEnv(task, params, signals), network, family, ValueFunction(value_features))
+    task = TaskEnv(acting, source, observe)
+    return GCRL(TaskTrainEnv(task, params, signals), network, family,
+                ValueFunction(value_features), world, primitives if hierarchical else None)
 
 
 def summarise(row: dict[str, float]) -> dict[str, float]:
@@ -327,6 +348,20 @@ def value_config(method: GCRL, total_timesteps: int) -> ValueConfig:
                        num_updates=int(min(10_000, max(1, total_timesteps // 1500))))
 
 
+def prepare_training(method: GCRL, key: jax.Array, config: PPOConfig,
+                     log: Callable[[str], None] = print) -> GCRL:
+    """Before PPO: train the direction primitives of a robot world (one primitive step per 15
+    training steps, at most 1M each; 15M: 1M) and return the method acting through them."""
+    if method.primitives is None:
+        return method
+    steps = int(min(primitives_lib.MAX_STEPS, max(1, config.total_timesteps // 15)))
+    trained = primitives_lib.train_primitives(
+        method.world, method.env.params, jax.random.fold_in(key, 4),
+        primitives_lib.ppo_config(steps), log)
+    return make_method(method.world, method.env.params, method.family, method.network.trunk,
+                       method.value_network.features, primitives=trained)
+
+
 def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig,
                     log: Callable[[str], None] = print) -> dict[str, Any]:
     """After PPO: train each seed's GCVF (leading seed axis on `params`); returns
@@ -339,7 +374,11 @@ def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig
     log(f"GCVF: {cfg.num_updates} updates on {[int(s) for s in stats['samples']]} samples per "
         f"seed; L1 loss {np.round(stats['loss_first'], 4).tolist()} -> "
         f"{np.round(stats['loss_last'], 4).tolist()}")
-    return {"policy": params, "gcvf": gcvf}
+    out = {"policy": params, "gcvf": gcvf}
+    if method.primitives is not None:  # one frozen set, repeated along the seed axis
+        out["primitives"] = jax.tree.map(
+            lambda x: np.broadcast_to(np.asarray(x), (num_seeds, *np.shape(x))), method.primitives)
+    return out
 
 
 def param_shapes(method: GCRL, policy_shapes: Any) -> dict[str, Any]:
@@ -348,11 +387,85 @@ def param_shapes(method: GCRL, policy_shapes: Any) -> dict[str, Any]:
     width = sum(int(np.prod(x.shape)) for x in jax.tree.leaves(obs.parts)) + 2 * GOAL_DIM
     gcvf = jax.eval_shape(method.value_network.init, jax.random.key(0),
                           jax.ShapeDtypeStruct((1, width), jnp.float32))
-    return {"policy": policy_shapes, "gcvf": gcvf}
+    out = {"policy": policy_shapes, "gcvf": gcvf}
+    if method.primitives is not None:
+        out["primitives"] = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype),
+                                         method.primitives)
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
 # Test time: search for the next goal, act with the safety rule
+
+
+def goal_outputs(network: nn.Module, params: Any, parts: Mapping[str, jax.Array],
+                 goals: jax.Array) -> PolicyOutput:
+    """The network on one observation's `parts` with every goal: outputs with a leading axis P."""
+    num_props = goals.shape[0]
+    batch = GoalObs(jax.tree.map(lambda x: jnp.broadcast_to(x, (num_props, *x.shape)), parts),
+                    goals, jnp.arange(num_props, dtype=jnp.int32))
+    return network.apply(params, batch)
+
+
+def safe_action(network: nn.Module, out: PolicyOutput, goal: jax.Array, avoid: jax.Array,
+                value_threshold: float, deterministic: bool, key: jax.Array,
+                primitives: Any = None, sensors: jax.Array | None = None) -> jax.Array:
+    """The world action by the original's safety rule, on `goal_outputs`.
+
+    When some avoided proposition has `V(s, p) > value_threshold` and above the goal's value,
+    turn away from the most dangerous one: with direction primitives, the sum of the primitive
+    least likely toward it and the goal's best primitive other than the one most likely toward
+    it (the original's); on a grid, that goal move alone; with a continuous head, the goal's
+    mean action minus the danger's. Otherwise the goal's mode (`deterministic`) or a sample.
+    `goal` int32[] (-1: none; then only the turn away, when there is a danger). `primitives`,
+    `sensors`: the primitives' parameters and the robot sensors, for a primitive network.
+    """
+    index = jnp.maximum(goal, 0)
+    danger = jnp.where(avoid, out.value, -jnp.inf)
+    worst = jnp.argmax(danger)
+    has_goal = goal >= 0
+    turn = (danger[worst] > value_threshold) & ((danger[worst] > out.value[index]) | ~has_goal)
+    pi = jax.tree.map(lambda x: x[index], out.pi)
+    chosen = pi.mode() if deterministic else pi.sample(key)
+    if network.continuous:
+        away = jnp.clip(out.pi.mean[index] * has_goal - out.pi.mean[worst], -1.0, 1.0)
+        return jnp.where(turn, away, chosen)
+    toward = jnp.argmax(out.pi.logits[worst])
+    masked = jnp.where(jnp.arange(out.pi.logits.shape[-1]) == toward, -jnp.inf, out.pi.logits[index])
+    other, safe = jnp.argmax(masked), jnp.argmin(out.pi.logits[worst])
+    if not network.primitive_sensors:
+        return jnp.where(turn, jnp.where(has_goal, other, safe), chosen).astype(chosen.dtype)
+    action_dim = primitives["params"]["log_std"].shape[-1]
+    prim = primitives_lib.PrimitiveNetwork(action_dim)
+    move = lambda i: primitives_lib.primitive_action(prim, primitives, i, sensors,
+                                                     primitives_lib.EVAL_TEMPERATURE)
+    composed = jnp.clip(jnp.where(has_goal, move(other), 0.0) + move(safe), -1.0, 1.0)
+    return jnp.where(turn, composed, move(chosen))
+
+
+def _sensors(network: nn.Module, obs: Mapping[str, jax.Array]) -> jax.Array | None:
+    """The robot sensors a primitive network reads (`obs["ego"]` without the wall sensor)."""
+    if not getattr(network, "primitive_sensors", 0):
+        return None
+    return obs["ego"][..., : network.primitive_sensors].astype(jnp.float32)
+
+
+def coordinator_agent(network: nn.Module, obs_kinds: Mapping[str, str],
+                      value_threshold: float = VALUE_THRESHOLD):
+    """GCRL-LTL on one agent of the multi-agent coordinator (`tasks.coordinator`): the first
+    proposition of its reach set is the goal, its avoid set feeds the safety rule; mode actions.
+    Params `{"policy", "gcvf"}` (+ `"primitives"` on robot worlds; the GCVF is not read: the
+    coordinator plans)."""
+    kinds = dict(obs_kinds)
+
+    def act(params, obs, goal, key):
+        goals = jnp.asarray(goal_vectors(goal.reach.shape[-1]))
+        out = goal_outputs(network, params["policy"], obs_parts(obs, kinds), goals)
+        index = jnp.where(jnp.any(goal.reach), jnp.argmax(goal.reach), -1)
+        return safe_action(network, out, index, goal.avoid, value_threshold, True, key,
+                           params.get("primitives"), _sensors(network, obs))
+
+    return act
 
 
 class GCRLCarry(NamedTuple):
@@ -389,9 +502,7 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
     kinds = dict(obs_kinds)
 
     def all_goals(params, parts):
-        batch = GoalObs(jax.tree.map(lambda x: jnp.broadcast_to(x, (num_props, *x.shape)), parts),
-                        goals, jnp.arange(num_props, dtype=jnp.int32))
-        return network.apply(params["policy"], batch)
+        return goal_outputs(network, params["policy"], parts, goals)
 
     def init(params, obs, task_state, key):
         parts = obs_parts(obs, kinds)
@@ -413,23 +524,6 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
         avoid = (rows >= 0) & spec.violation[nxt]
         return GCRLCarry(q, last, step.goal, step.slot, avoid, carry.to_go)
 
-    def act(out, carry, key):
-        goal = jnp.maximum(carry.goal, 0)
-        danger = jnp.where(carry.avoid, out.value, -jnp.inf)
-        worst = jnp.argmax(danger)
-        has_goal = carry.goal >= 0
-        turn = (danger[worst] > value_threshold) & ((danger[worst] > out.value[goal]) | ~has_goal)
-        pi = jax.tree.map(lambda x: x[goal], out.pi)
-        chosen = pi.mode() if deterministic else pi.sample(key)
-        if network.continuous:
-            away = jnp.clip(out.pi.mean[goal] * has_goal - out.pi.mean[worst], -1.0, 1.0)
-        else:
-            toward = jnp.argmax(out.pi.logits[worst])
-            masked = jnp.where(jnp.arange(out.pi.logits.shape[-1]) == toward, -jnp.inf,
-                               out.pi.logits[goal])
-            away = jnp.where(has_goal, jnp.argmax(masked), jnp.argmin(out.pi.logits[worst]))
-        return jnp.where(turn, away, chosen).astype(chosen.dtype)
-
     def apply(params, obs, task_state, carry: GCRLCarry, key):
         out = all_goals(params, obs_parts(obs, kinds))
         label = task_state.propositions
@@ -439,6 +533,8 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
         moved = task_state.q != carry.q
         carry = jax.lax.cond(moved | reached, lambda: replan(out, task_state, carry, last),
                              lambda: carry._replace(last=last))
-        return (act(out, carry, key), carry.slot), carry
+        action = safe_action(network, out, carry.goal, carry.avoid, value_threshold,
+                             deterministic, key, params.get("primitives"), _sensors(network, obs))
+        return (action, carry.slot), carry
 
     return StatefulPolicy(init, apply)

@@ -20,7 +20,7 @@ def _kernels(tree):
 
 
 def test_networks_have_the_original_sizes():
-    for env_id, width, head in (("LetterLTL0-v0", 1024 + 24, (256, 4)), ("PointLTL0-v0", 80 + 24, (256, 2))):
+    for env_id, width, head in (("LetterLTL0-v0", 1024 + 24, (256, 4)), ("PointLTL0-v0", 80 + 24, (256, 4))):
         world, params = specrl_jax.make(env_id)
         method = gcrl.make_method(world, params, "letter" if env_id.startswith("L") else "zone")
         obs, _ = jax.eval_shape(method.env.reset, jax.random.key(0), method.init_task_params())
@@ -33,6 +33,13 @@ def test_networks_have_the_original_sizes():
         state = sum(int(np.prod(x.shape)) for x in jax.tree.leaves(obs.parts))
         assert _kernels(shapes["gcvf"]) == [(state + 48, 1024)] + [(1024, 1024)] * 3 + [(1024, 1)]
         assert obs.goal.shape == (24,)
+        if env_id.startswith("Point"):  # 4 direction primitives on the 12 robot sensors
+            assert method.network.primitive_sensors == 12
+            stacked = [x.shape for x in jax.tree.leaves(shapes["primitives"]) if len(x.shape) == 3]
+            assert sorted(stacked) == sorted([(4, 12, 64), (4, 64, 64), (4, 64, 2)] * 1
+                                             + [(4, 12, 64), (4, 64, 64), (4, 64, 1)]), stacked
+        else:
+            assert "primitives" not in shapes
 
 
 def _tiny_world():
@@ -73,17 +80,15 @@ def test_gcrl_learns_a_tiny_world_and_its_agent_follows_specs():
 
 
 class _Stub:
-    """A network answering `GoalObs` batches with fixed logits and values per goal."""
+    """A network answering `GoalObs` batches with the logits and values per goal in `params`."""
 
     continuous = False
-
-    def __init__(self, logits, values):
-        self.logits, self.values = jnp.asarray(logits, jnp.float32), jnp.asarray(values, jnp.float32)
+    primitive_sensors = 0
 
     def apply(self, params, obs):
         zeros = jnp.zeros(obs.goal_index.shape)
-        return PolicyOutput(Categorical(self.logits[obs.goal_index]), self.values[obs.goal_index],
-                            zeros, zeros)
+        return PolicyOutput(Categorical(params["logits"][obs.goal_index]),
+                            params["values"][obs.goal_index], zeros, zeros)
 
 
 class _PairStub:
@@ -91,30 +96,28 @@ class _PairStub:
         return jnp.full(x.shape[:-1], 0.5)
 
 
-def _act(values):
+def test_agent_pursues_b_and_turns_away_from_a_above_the_threshold():
     """One step of the agent on '!a U b' with stub values V(s, a), V(s, b)."""
     world, params = specrl_jax.make("LetterLTL0-v0")
     spec = automata.compile_spec("!a U b", world.propositions, alphabet=world.alphabet)
     task = TaskEnv(world, automata.stack([spec]))
     obs, state = task.reset(jax.random.key(0), params, spec_index=0)
-    logits = np.zeros((12, 4))
+    logits = np.zeros((12, 4), np.float32)
     logits[0] = [0, 0, 5, 1]  # toward 'a': action 2, least likely 0
     logits[1] = [0, 3, 4, 1]  # toward 'b': action 2 best, then 1
-    policy = gcrl.make_policy(_Stub(logits, np.r_[values, np.zeros(10)]), world.alphabet,
-                              world.obs_kinds, value_network=_PairStub())
-    carry = policy.init({"policy": None, "gcvf": None}, obs, state, jax.random.key(1))
-    (action, slot), carry = policy.apply({"policy": None, "gcvf": None}, obs, state, carry,
-                                         jax.random.key(2))
-    return int(action), int(slot), carry
+    policy = gcrl.make_policy(_Stub(), world.alphabet, world.obs_kinds, value_network=_PairStub())
 
+    @jax.jit
+    def act(values):
+        net = {"policy": {"logits": jnp.asarray(logits), "values": jnp.zeros(12).at[:2].set(values)},
+               "gcvf": None}
+        carry = policy.init(net, obs, state, jax.random.key(1))
+        return policy.apply(net, obs, state, carry, jax.random.key(2))
 
-def test_agent_pursues_b_and_turns_away_from_a_above_the_threshold():
-    action, slot, carry = _act([0.5, 0.7])  # 'a' is not close: the goal's best action
+    (action, slot), carry = act(jnp.array([0.5, 0.7]))  # 'a' is not close: the goal's best action
     assert int(carry.goal) == 1 and np.asarray(carry.avoid)[0] and not np.asarray(carry.avoid)[1:].any()
-    assert (action, slot) == (2, -1)
-    action, _, _ = _act([0.9, 0.7])  # 'a' closer than the goal and above 0.85: the goal's best other move
-    assert action == 1
-    action, _, _ = _act([0.8, 0.7])  # closer than the goal but under the threshold
-    assert action == 2
-    action, _, _ = _act([0.9, 0.95])  # above the threshold but the goal is closer
-    assert action == 2
+    assert (int(action), int(slot)) == (2, -1)
+    # 'a' closer than the goal and above 0.85: the goal's best move other than toward 'a'
+    assert int(act(jnp.array([0.9, 0.7]))[0][0]) == 1
+    assert int(act(jnp.array([0.8, 0.7]))[0][0]) == 2  # closer than the goal but under 0.85
+    assert int(act(jnp.array([0.9, 0.95]))[0][0]) == 2  # above 0.85 but the goal is closer

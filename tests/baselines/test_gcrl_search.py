@@ -17,7 +17,7 @@ from specrl_jax import automata
 from specrl_jax.baselines import gcrl_search as search
 
 PROPS = ("a", "b", "c")
-FORMULAS = ["F a & F b", "!a U (b & F c)", "F (a & F (b & F c))", "G F a & G F b",
+FORMULAS = ["!a U (b & F c)", "F (a & F (b & F c))",
             "G F a & G !c", "F G a", "G F (a | b) & G (c -> F a)"]
 
 

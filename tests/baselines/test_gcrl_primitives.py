@@ -1,0 +1,110 @@
+"""GCRL-LTL's direction primitives on a stub plane world: the training reward against a
+hand-computed value, the auto-reset at the primitives' horizon, the hierarchical world's action,
+and the safety rule summing two primitives."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from specrl_jax.baselines import gcrl, gcrl_primitives as prim
+from specrl_jax.baselines.ppo.networks import Categorical, PolicyOutput
+from specrl_jax.envs.spaces import Box
+
+
+@struct.dataclass
+class _Params:
+    max_steps: int = 1000
+
+
+@struct.dataclass
+class _Physics:
+    agent_pos: jax.Array  # float32[3]
+
+
+@struct.dataclass
+class _State:
+    physics: _Physics
+    time: jax.Array
+
+
+class _Robot:
+    ego_size = 2
+
+
+class _PlaneWorld:
+    """A point moved by its action (metres per step), 0.5 s per step; `ego` = [x, y, wall x4]."""
+
+    robot = _Robot()
+    frame_dt = 0.5
+    action_space = Box(-1.0, 1.0, (2,))
+
+    def _obs(self, pos):
+        return {"ego": jnp.concatenate([pos[:2], jnp.full(4, 7.0)])}
+
+    def reset(self, key, params):
+        pos = jnp.concatenate([jax.random.uniform(key, (2,)), jnp.zeros(1)])
+        return self._obs(pos), _State(_Physics(pos), jnp.int32(0))
+
+    def step(self, key, state, action, params):
+        pos = state.physics.agent_pos + jnp.concatenate([action, jnp.zeros(1)])
+        time = state.time + 1
+        terminated = jnp.abs(pos[0]) > 50.0
+        truncated = (time >= params.max_steps) & ~terminated
+        nxt = _State(_Physics(pos), time)
+        return self._obs(pos), nxt, jnp.float32(0), terminated, truncated, {"propositions": jnp.zeros(1, bool)}
+
+
+def test_direction_reward_is_speed_along_minus_five_hundredths_across():
+    env = prim.direction_env(_PlaneWorld(), _Params())
+    sensors, state = env.reset(jax.random.key(0), jnp.int32(0))
+    np.testing.assert_allclose(sensors, state.physics.agent_pos[:2])  # the wall sensor is left out
+    action = jnp.array([0.3, -0.2])  # velocity (0.6, -0.4) m/s
+    for direction, want in ((0, 0.6 - 0.05 * 0.4), (1, -0.6 - 0.05 * 0.4),
+                            (2, -0.4 - 0.05 * 0.6), (3, 0.4 - 0.05 * 0.6)):
+        _, _, result = env.step(jax.random.key(1), state, action, jnp.int32(direction))
+        np.testing.assert_allclose(float(result.reward), want, rtol=1e-5)
+    # the actions are clipped to the box, and the episode resets at the primitives' horizon
+    _, _, result = env.step(jax.random.key(1), state, jnp.array([3.0, 0.0]), jnp.int32(0))
+    np.testing.assert_allclose(float(result.reward), 2.0, rtol=1e-5)
+    late = state.replace(time=jnp.int32(prim.HORIZON - 1))
+    sensors, after, result = env.step(jax.random.key(2), late, action, jnp.int32(0))
+    assert bool(result.truncated) and int(after.time) == 0
+    np.testing.assert_allclose(result.final_obs, state.physics.agent_pos[:2] + action, rtol=1e-6)
+
+
+def _primitives(means):
+    """Four primitives whose mean action is `means[k]` whatever the sensors."""
+    params = prim.init_primitives(_PlaneWorld(), jax.random.key(0))
+    head = params["params"]["Dense_0"]
+    params["params"]["Dense_0"] = {"kernel": jnp.zeros_like(head["kernel"]),
+                                   "bias": jnp.asarray(means, jnp.float32)}
+    return params
+
+
+def test_primitive_world_steps_the_chosen_primitive_times_the_temperature():
+    means = [[0.5, 0.0], [-0.9, 0.0], [0.0, 0.2], [0.0, -0.4]]
+    world = prim.PrimitiveWorld(_PlaneWorld(), _primitives(means), temperature=1.25)
+    assert world.action_space.n == 4
+    _, state = world.reset(jax.random.key(0), _Params())
+    for k, want in enumerate([[0.625, 0.0], [-1.0, 0.0], [0.0, 0.25], [0.0, -0.5]]):
+        _, after, *_ = world.step(jax.random.key(1), state, jnp.int32(k), _Params())
+        moved = after.world.physics.agent_pos[:2] - state.world.physics.agent_pos[:2]
+        np.testing.assert_allclose(moved, want, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(after.sensors, after.world.physics.agent_pos[:2])
+
+
+def test_safety_rule_sums_the_safe_and_the_goal_primitive():
+    """Goal 1, danger 0 (above 0.85 and the goal's value): the primitive least likely toward 0
+    plus the goal's best primitive other than the one most likely toward 0, at temperature 1.5."""
+    means = [[0.5, 0.0], [0.0, 0.5], [0.3, 0.3], [0.0, -0.5]]
+    primitives = _primitives(means)
+    network = gcrl.GCRLNetwork(4, primitive_sensors=2)
+    logits = jnp.array([[0.0, 1.0, 5.0, 2.0],  # toward the danger: primitive 2; least likely 0
+                        [0.0, 3.0, 4.0, 1.0]])  # toward the goal: 2 best, then 1
+    sensors = jnp.zeros(2)
+    for values, want in (([0.9, 0.7], [0.75, 0.75]), ([0.8, 0.7], [0.45, 0.45])):
+        out = PolicyOutput(Categorical(logits), jnp.asarray(values), jnp.zeros(2), jnp.zeros(2))
+        action = gcrl.safe_action(network, out, jnp.int32(1), jnp.array([True, False]), 0.85,
+                                  True, jax.random.key(0), primitives, sensors)
+        np.testing.assert_allclose(action, want, atol=1e-6)
