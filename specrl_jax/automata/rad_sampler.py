@@ -197,12 +197,28 @@ def sample_rad_dfa(rng: np.random.Generator, tokens: np.ndarray, num_symbols: in
     return dfa
 
 
-def sample_rad_cdfa(rng: np.random.Generator, alphabet: np.ndarray) -> list[DFA]:
-    """One RAD conjunction (1..5 DFAs) over `alphabet` bool[A, P], redrawn while empty."""
+def graph_size(cdfa: Sequence[DFA]) -> int:
+    """Nodes of a conjunction's graph for RAD's encoder: one AND node, one per state, one per
+    (state, distinct successor other than itself)."""
+    size = 1
+    for dfa in cdfa:
+        for s in range(dfa.num_states):
+            successors = np.unique(dfa.delta[s])
+            size += 1 + int((successors != s).sum())
+    return size
+
+
+def sample_rad_cdfa(rng: np.random.Generator, alphabet: np.ndarray,
+                    max_size: int | None = None) -> list[DFA]:
+    """One RAD conjunction (1..5 DFAs) over `alphabet` bool[A, P], redrawn while empty (and,
+    given `max_size`, while its graph has more nodes: a truncation of the original's
+    distribution, docs/fidelity.md)."""
     tokens, num_symbols = tokens_of(alphabet), int(np.shape(alphabet)[0])
     while True:
         count = _truncated_geometric(rng, MAX_CONJUNCTS)
         dfas = [sample_rad_dfa(rng, tokens, num_symbols) for _ in range(count)]
+        if max_size is not None and graph_size(dfas) > max_size:
+            continue
         if not product_is_empty(dfas):
             return dfas
 
@@ -278,13 +294,15 @@ def build_bank(cdfas: Sequence[Sequence[DFA]], alphabet: np.ndarray,
     return DFABank(**jax.device_put(arrays))
 
 
-def sample_bank(num: int, alphabet: np.ndarray, seed: int = 0) -> DFABank:
-    """`num` RAD conjunctions over `alphabet`, padded to 5 conjuncts of 10 states (the sampler's
-    largest), so banks of one alphabet stack and share compilations."""
+def sample_bank(num: int, alphabet: np.ndarray, seed: int = 0, max_size: int | None = None
+                ) -> DFABank:
+    """`num` RAD conjunctions over `alphabet` (graphs of at most `max_size` nodes if given),
+    padded to 5 conjuncts of 10 states (the sampler's largest), so banks of one alphabet stack
+    and share compilations."""
     if num < 1:
         raise ValueError(f"num must be >= 1, got {num}")
     rng = np.random.default_rng(seed)
-    cdfas = [sample_rad_cdfa(rng, alphabet) for _ in range(num)]
+    cdfas = [sample_rad_cdfa(rng, alphabet, max_size) for _ in range(num)]
     return build_bank(cdfas, alphabet, MAX_CONJUNCTS, MAX_CHAIN_STATES + 2)
 
 

@@ -9,15 +9,22 @@ current state; every node attends to itself. Node features: the A symbols, then 
 init (current state), normal (state node), temp (transition node), accepting, rejecting (a
 non-accepting state whose every transition is a self-loop), at indices -6 .. -1 as the original.
 
+Layout: node 0 is the AND node, nodes 1 .. Ns-1 the state nodes, nodes Ns .. Ns+Nt-1 the
+transition nodes (each block padded). Edges are stored per receiver, as in-neighbour slots: a
+state or AND node has up to D-1 in-neighbours, a transition node exactly one (its successor
+state); slot 0 is the node itself. The network then gathers its neighbours and takes the
+attention softmax over the slots: the same sums as segment ops over an edge list, without a
+scatter (XLA's scatter made the encoder 10x slower on a CPU).
+
 The host builds, per conjunction of a bank, the graph of its full minimal DFAs once
 (`build_graphs`); inside `jit`, `graph_of` masks the nodes that the current states can no longer
-reach, flags the current states and draws the AND edges, so the graph is that of the advanced,
-minimised conjunction (see `automata.rad_sampler`).
+reach, flags the current states and draws the AND node's in-edges, so the graph is that of the
+advanced, minimised conjunction (see `automata.rad_sampler`).
 
 Encoder (the original's `GATv2Conv` entry): `h0 = W x`; 8 times one shared GATv2 layer of 4
 heads on `[h, h0]` (128 -> 64 per head), tanh per head, heads summed; the AND node's hidden,
 through a Dense layer to 32. GATv2: `e_ij = a . LeakyReLU_0.2(W_s x_j + W_d x_i)`, softmax over
-the in-edges of i, `h_i = sum_j alpha_ij W_s x_j` (segment ops over a flattened batch).
+the in-edges of i (itself included), `h_i = sum_j alpha_ij W_s x_j`.
 """
 
 from __future__ import annotations
@@ -45,7 +52,7 @@ def num_features(num_symbols: int) -> int:
 
 @struct.dataclass
 class GraphBank:
-    """The graphs of a `DFABank`'s conjunctions (K of them, Nn nodes, E edges each).
+    """The graphs of a `DFABank`'s conjunctions: K graphs of Nn = Ns + Nt nodes.
 
     Attributes:
         features: bool[K, Nn, F] node features without the init flag (F = A + 6).
@@ -53,7 +60,9 @@ class GraphBank:
         conjunct: int8[K, Nn] the node's DFA (-1: AND or padding).
         state: int8[K, Nn] a state node's state, a transition node's source state.
         state_node: int16[K, N, S] node of each DFA state (-1 none).
-        senders, receivers: int16[K, E] the transition edges (-1 padding).
+        in_transitions: int16[K, Ns, D - 1] the transition nodes sending to each state node
+            (-1 padding; the AND node's row is empty: its senders depend on the current states).
+        successor: int16[K, Nt] each transition node's successor state node (-1 padding).
     """
 
     features: jax.Array
@@ -61,8 +70,8 @@ class GraphBank:
     conjunct: jax.Array
     state: jax.Array
     state_node: jax.Array
-    senders: jax.Array
-    receivers: jax.Array
+    in_transitions: jax.Array
+    successor: jax.Array
 
     @property
     def num_nodes(self) -> int:
@@ -70,25 +79,26 @@ class GraphBank:
 
 
 class Graph(NamedTuple):
-    """One graph (leading batch axes allowed): `features` float32[Nn, F], `node_mask` bool[Nn],
-    `senders`/`receivers` int32[E] with `edge_mask` bool[E]; node 0 is the AND node (readout).
-    Self edges are implicit: every live node attends to itself."""
+    """One graph (leading batch axes allowed): `features` float32[Nn, F], `node_mask` bool[Nn];
+    in-neighbour slots (slot 0: the node itself) of the AND and state nodes, `neighbours`
+    int32[Ns, D] with `neighbour_mask` bool[Ns, D], and of the transition nodes,
+    `successor` int32[Nt, 2] with `successor_mask` bool[Nt, 2]. Node 0 is the AND node."""
 
     features: jax.Array
     node_mask: jax.Array
-    senders: jax.Array
-    receivers: jax.Array
-    edge_mask: jax.Array
+    neighbours: jax.Array
+    neighbour_mask: jax.Array
+    successor: jax.Array
+    successor_mask: jax.Array
 
 
-def _cdfa_graph(delta: np.ndarray, accepting: np.ndarray, num_states: np.ndarray):
-    """Nodes and edges of one conjunction's full DFAs (lists)."""
+def _cdfa_graph(delta: np.ndarray, accepting: np.ndarray, num_states: np.ndarray) -> dict:
+    """Nodes and edges of one conjunction's full DFAs (lists; transition node ids relative to
+    the transition block)."""
     num_symbols = delta.shape[-1]
     width = num_features(num_symbols)
-    feats, kind, conj, state, senders, receivers = [], [], [], [], [], []
-    and_row = np.zeros(width, bool)
-    and_row[AND] = True
-    feats.append(and_row), kind.append(KIND_AND), conj.append(-1), state.append(0)
+    state_feats, state_conj, state_id = [], [], []
+    trans_feats, trans_conj, trans_src, successor = [], [], [], []
     state_node = -np.ones(delta.shape[:2], np.int64)
     for n in range(delta.shape[0]):
         for s in range(num_states[n]):
@@ -96,8 +106,9 @@ def _cdfa_graph(delta: np.ndarray, accepting: np.ndarray, num_states: np.ndarray
             row[NORMAL] = True
             row[ACCEPTING] = accepting[n, s]
             row[REJECTING] = (not accepting[n, s]) and bool(np.all(delta[n, s] == s))
-            state_node[n, s] = len(kind)
-            feats.append(row), kind.append(KIND_STATE), conj.append(n), state.append(s)
+            state_node[n, s] = 1 + len(state_feats)
+            state_feats.append(row), state_conj.append(n), state_id.append(s)
+    incoming: dict[int, list[int]] = {}
     for n in range(delta.shape[0]):
         for s in range(num_states[n]):
             for e in np.unique(delta[n, s]):
@@ -106,38 +117,60 @@ def _cdfa_graph(delta: np.ndarray, accepting: np.ndarray, num_states: np.ndarray
                 row = np.zeros(width, bool)
                 row[:num_symbols] = delta[n, s] == e
                 row[TEMP] = True
-                t = len(kind)
-                feats.append(row), kind.append(KIND_TRANSITION), conj.append(n), state.append(s)
-                senders += [state_node[n, e], t]
-                receivers += [t, state_node[n, s]]
-    return feats, kind, conj, state, state_node, senders, receivers
+                incoming.setdefault(int(state_node[n, s]), []).append(len(trans_feats))
+                trans_feats.append(row), trans_conj.append(n), trans_src.append(s)
+                successor.append(int(state_node[n, e]))
+    return {"state_feats": state_feats, "state_conj": state_conj, "state_id": state_id,
+            "trans_feats": trans_feats, "trans_conj": trans_conj, "trans_src": trans_src,
+            "successor": successor, "state_node": state_node, "incoming": incoming}
 
 
-def build_graphs(bank: DFABank, max_nodes: int | None = None, max_edges: int | None = None
+def build_graphs(bank: DFABank, num_state_nodes: int | None = None,
+                 num_transition_nodes: int | None = None, max_in: int | None = None
                  ) -> GraphBank:
-    """The graphs of every conjunction of `bank`, padded to the bank's largest (or the caps)."""
+    """The graphs of every conjunction of `bank`, padded to the bank's largest blocks (or to
+    Ns = `num_state_nodes` including the AND node, Nt = `num_transition_nodes`, and `max_in`
+    in-neighbours of a state node)."""
     delta, accepting = np.asarray(bank.delta), np.asarray(bank.accepting)
     num_states = np.asarray(bank.num_states)
     graphs = [_cdfa_graph(delta[k], accepting[k], num_states[k]) for k in range(bank.size)]
-    nodes = max(len(g[1]) for g in graphs) if max_nodes is None else max_nodes
-    edges = max(max(len(g[5]) for g in graphs), 1) if max_edges is None else max_edges
-    if any(len(g[1]) > nodes or len(g[5]) > edges for g in graphs):
-        raise ValueError(f"a conjunction's graph exceeds max_nodes={nodes} or max_edges={edges}")
+    ns = 1 + max(len(g["state_feats"]) for g in graphs)
+    nt = max(max(len(g["trans_feats"]) for g in graphs), 1)
+    deg = max([len(v) for g in graphs for v in g["incoming"].values()] + [1])
+    ns = ns if num_state_nodes is None else num_state_nodes
+    nt = nt if num_transition_nodes is None else num_transition_nodes
+    deg = deg if max_in is None else max_in
+    if any(1 + len(g["state_feats"]) > ns or len(g["trans_feats"]) > nt
+           or any(len(v) > deg for v in g["incoming"].values()) for g in graphs):
+        raise ValueError(f"a conjunction's graph exceeds num_state_nodes={ns}, "
+                         f"num_transition_nodes={nt} or max_in={deg}")
     k, width = bank.size, num_features(delta.shape[-1])
     out = {
-        "features": np.zeros((k, nodes, width), bool),
-        "kind": np.zeros((k, nodes), np.int8),
-        "conjunct": -np.ones((k, nodes), np.int8),
-        "state": np.zeros((k, nodes), np.int8),
-        "state_node": np.stack([g[4] for g in graphs]).astype(np.int16),
-        "senders": -np.ones((k, edges), np.int16),
-        "receivers": -np.ones((k, edges), np.int16),
+        "features": np.zeros((k, ns + nt, width), bool),
+        "kind": np.zeros((k, ns + nt), np.int8),
+        "conjunct": -np.ones((k, ns + nt), np.int8),
+        "state": np.zeros((k, ns + nt), np.int8),
+        "state_node": np.stack([g["state_node"] for g in graphs]).astype(np.int16),
+        "in_transitions": -np.ones((k, ns, deg), np.int16),
+        "successor": -np.ones((k, nt), np.int16),
     }
-    for i, (feats, kind, conj, state, _, senders, receivers) in enumerate(graphs):
-        m, e = len(kind), len(senders)
-        out["features"][i, :m] = np.stack(feats)
-        out["kind"][i, :m], out["conjunct"][i, :m], out["state"][i, :m] = kind, conj, state
-        out["senders"][i, :e], out["receivers"][i, :e] = senders, receivers
+    for i, g in enumerate(graphs):
+        m, t = len(g["state_feats"]), len(g["trans_feats"])
+        out["features"][i, 0, AND] = True
+        out["kind"][i, 0] = KIND_AND
+        if m:
+            out["features"][i, 1:1 + m] = np.stack(g["state_feats"])
+            out["kind"][i, 1:1 + m] = KIND_STATE
+            out["conjunct"][i, 1:1 + m] = g["state_conj"]
+            out["state"][i, 1:1 + m] = g["state_id"]
+        if t:
+            out["features"][i, ns:ns + t] = np.stack(g["trans_feats"])
+            out["kind"][i, ns:ns + t] = KIND_TRANSITION
+            out["conjunct"][i, ns:ns + t] = g["trans_conj"]
+            out["state"][i, ns:ns + t] = g["trans_src"]
+            out["successor"][i, :t] = g["successor"]
+        for node, senders in g["incoming"].items():
+            out["in_transitions"][i, node, :len(senders)] = ns + np.asarray(senders)
     return GraphBank(**jax.device_put(out))
 
 
@@ -151,20 +184,26 @@ def graph_of(graphs: GraphBank, bank: DFABank, index: jax.Array, q: jax.Array) -
     node_mask = (kind == KIND_AND) | ((kind > KIND_AND) & used & reachable)
     init = (kind == KIND_STATE) & (state == q[conj_safe])
     features = graphs.features[index].astype(jnp.float32).at[:, INIT].set(init)
-    senders = graphs.senders[index].astype(jnp.int32)
-    receivers = graphs.receivers[index].astype(jnp.int32)
-    edge_mask = ((senders >= 0) & node_mask[jnp.maximum(senders, 0)]
-                 & node_mask[jnp.maximum(receivers, 0)])
-    # one AND edge per used conjunct, from its current state
+    num_state_nodes = graphs.in_transitions.shape[-2]
+    # AND and state nodes: themselves, then their in-neighbours; the AND node's are the current
+    # state of each used conjunct
     current = graphs.state_node[index, jnp.arange(q.shape[-1]), q].astype(jnp.int32)
-    and_mask = bank.num_states[index] > 0
-    return Graph(
-        features * node_mask[:, None],
-        node_mask,
-        jnp.concatenate([jnp.maximum(senders, 0), jnp.maximum(current, 0)]),
-        jnp.concatenate([jnp.maximum(receivers, 0), jnp.zeros_like(current)]),
-        jnp.concatenate([edge_mask, and_mask]),
-    )
+    current = jnp.where(bank.num_states[index] > 0, current, -1)
+    incoming = graphs.in_transitions[index].astype(jnp.int32)
+    width = max(incoming.shape[-1], current.shape[-1])
+    incoming = jnp.pad(incoming, ((0, 0), (0, width - incoming.shape[-1])), constant_values=-1)
+    and_row = jnp.pad(current, (0, width - current.shape[-1]), constant_values=-1)
+    incoming = incoming.at[0].set(and_row)
+    own = jnp.arange(num_state_nodes)[:, None]
+    neighbours = jnp.concatenate([own, incoming], axis=1)
+    neighbour_mask = (neighbours >= 0) & node_mask[jnp.maximum(neighbours, 0)] & node_mask[own]
+    # transition nodes: themselves and their successor state
+    trans = num_state_nodes + jnp.arange(graphs.successor.shape[-1])
+    succ = graphs.successor[index].astype(jnp.int32)
+    successor = jnp.stack([trans, jnp.maximum(succ, 0)], axis=1)
+    successor_mask = node_mask[trans][:, None] & jnp.stack([trans >= 0, succ >= 0], axis=1)
+    return Graph(features * node_mask[:, None], node_mask, jnp.maximum(neighbours, 0),
+                 neighbour_mask, successor, successor_mask)
 
 
 def unit_columns(key: jax.Array, shape: Sequence[int], dtype: Any = jnp.float32) -> jax.Array:
@@ -174,37 +213,47 @@ def unit_columns(key: jax.Array, shape: Sequence[int], dtype: Any = jnp.float32)
     return w / jnp.linalg.norm(w, axis=0, keepdims=True)
 
 
-class GATv2Layer(nn.Module):
-    """One GATv2 convolution of `heads` heads, `features` each, tanh per head, heads summed.
+def _attend(src: jax.Array, dst: jax.Array, slots: jax.Array, mask: jax.Array,
+            attn: jax.Array) -> jax.Array:
+    """GATv2 aggregation for receivers `dst` float32[G, R, H, F] over their in-neighbour slots
+    `slots` int32[G, R, D] (node ids within the graph; `mask` bool[G, R, D]) of the senders'
+    `src` float32[G, Nn, H, F]. Returns float32[G, R, H, F]."""
+    message = jax.vmap(lambda s, i: s[i])(src, slots)  # [G, R, D, H, F]
+    score = jnp.sum(nn.leaky_relu(message + dst[:, :, None], 0.2) * attn, axis=-1)  # [G, R, D, H]
+    score = jnp.where(mask[..., None], score, -jnp.inf)
+    top = jax.lax.stop_gradient(jnp.max(score, axis=2, keepdims=True))
+    weight = jnp.where(mask[..., None], jnp.exp(score - jnp.where(jnp.isfinite(top), top, 0.0)),
+                       0.0)
+    weight = weight / jnp.maximum(jnp.sum(weight, axis=2, keepdims=True), 1e-9)
+    return jnp.sum(weight[..., None] * message, axis=2)
 
-    Args (call): x float32[M, D] node inputs of a flattened batch, senders/receivers int32[Ed]
-    (self edges included), edge_mask bool[Ed]. Returns float32[M, features].
+
+class GATv2Layer(nn.Module):
+    """One GATv2 convolution on `[h, h0]` of `heads` heads, `features` each, tanh per head,
+    heads summed.
+
+    Args (call): h, h0 float32[G, Nn, features] node states of G graphs, and the graphs'
+    `neighbours`/`neighbour_mask` [G, Ns, D] and `successor`/`successor_mask` [G, Nt, 2].
+    Returns float32[G, Nn, features].
     """
 
     features: int = 64
     heads: int = 4
 
     @nn.compact
-    def __call__(self, x: jax.Array, senders: jax.Array, receivers: jax.Array,
-                 edge_mask: jax.Array) -> jax.Array:
-        num_nodes = x.shape[0]
+    def __call__(self, h: jax.Array, h0: jax.Array, graph: Graph) -> jax.Array:
         width = self.heads * self.features
-        src = nn.Dense(width, kernel_init=unit_columns, name="src")(x)
-        dst = nn.Dense(width, kernel_init=unit_columns, name="dst")(x)
+        kernel = self.param("kernel", unit_columns, (2 * self.features, 2 * width))
+        bias = self.param("bias", nn.initializers.zeros_init(), (2 * width,))
         attn = self.param("attention", nn.initializers.xavier_normal(), (self.heads, self.features))
-        src = src.reshape(num_nodes, self.heads, self.features)
-        dst = dst.reshape(num_nodes, self.heads, self.features)
-        message = src[senders]  # [Ed, H, F]
-        score = jnp.sum(nn.leaky_relu(message + dst[receivers], 0.2) * attn, axis=-1)  # [Ed, H]
-        segment = jnp.where(edge_mask, receivers, num_nodes)  # masked edges: a dropped segment
-        top = jax.ops.segment_max(score, segment, num_segments=num_nodes + 1)
-        weight = jnp.exp(score - jax.lax.stop_gradient(top[segment]))
-        weight = jnp.where(edge_mask[:, None], weight, 0.0)
-        norm = jax.ops.segment_sum(weight, segment, num_segments=num_nodes + 1)
-        total = jax.ops.segment_sum(weight[..., None] * message, segment,
-                                    num_segments=num_nodes + 1)[:num_nodes]
-        out = total / jnp.maximum(norm[:num_nodes], 1e-9)[..., None]
-        return jnp.sum(jnp.tanh(out), axis=1)
+        # [h, h0] @ kernel, with h0's half the same in every round (XLA computes it once)
+        both = h @ kernel[:self.features] + (h0 @ kernel[self.features:] + bias)
+        shape = (*h.shape[:2], self.heads, self.features)
+        src, dst = both[..., :width].reshape(shape), both[..., width:].reshape(shape)
+        num_state_nodes = graph.neighbours.shape[1]
+        top = _attend(src, dst[:, :num_state_nodes], graph.neighbours, graph.neighbour_mask, attn)
+        low = _attend(src, dst[:, num_state_nodes:], graph.successor, graph.successor_mask, attn)
+        return jnp.sum(jnp.tanh(jnp.concatenate([top, low], axis=1)), axis=2)
 
 
 class RADEncoder(nn.Module):
@@ -217,24 +266,12 @@ class RADEncoder(nn.Module):
 
     @nn.compact
     def __call__(self, graph: Graph) -> jax.Array:
-        batch, num_nodes = graph.node_mask.shape[:-1], graph.node_mask.shape[-1]
-        features = graph.features.reshape(-1, num_nodes, graph.features.shape[-1])
-        node_mask = graph.node_mask.reshape(-1, num_nodes)
-        num_graphs = features.shape[0]
-        offsets = (jnp.arange(num_graphs) * num_nodes)[:, None]
-        senders = graph.senders.reshape(num_graphs, -1) + offsets
-        receivers = graph.receivers.reshape(num_graphs, -1) + offsets
-        total = num_graphs * num_nodes
-        own = jnp.arange(total)
-        senders = jnp.concatenate([senders.reshape(-1), own])
-        receivers = jnp.concatenate([receivers.reshape(-1), own])
-        edge_mask = jnp.concatenate([graph.edge_mask.reshape(-1), node_mask.reshape(-1)])
-        h0 = nn.Dense(self.hidden, kernel_init=unit_columns, name="embed")(
-            features.reshape(total, -1))
+        batch = graph.node_mask.shape[:-1]
+        graph = jax.tree.map(lambda x: x.reshape(-1, *x.shape[len(batch):]), graph)
+        h0 = nn.Dense(self.hidden, kernel_init=unit_columns, name="embed")(graph.features)
         layer = GATv2Layer(self.hidden, self.heads, name="gat")
         h = h0
         for _ in range(self.num_layers):  # one shared layer, applied num_layers times
-            h = layer(jnp.concatenate([h, h0], axis=-1), senders, receivers, edge_mask)
-        root = h.reshape(num_graphs, num_nodes, self.hidden)[:, 0]
-        emb = nn.Dense(self.out, kernel_init=unit_columns, name="readout")(root)
+            h = layer(h, h0, graph) * graph.node_mask[..., None]
+        emb = nn.Dense(self.out, kernel_init=unit_columns, name="readout")(h[:, 0])
         return emb.reshape(*batch, self.out)

@@ -17,7 +17,9 @@ HAND = rad.DFA(np.array([[0, 1, 3, 0], [1, 1, 3, 2], [2, 2, 2, 2], [3, 3, 3, 3]]
 EVENTUALLY_B = rad.DFA(np.array([[0, 0, 1, 1], [1, 1, 1, 1]]), np.array([0, 1], bool), 0)
 
 
-CAPS = {"max_conjuncts": 2, "max_states": 5, "max_nodes": 16, "max_edges": 20}
+CAPS = {"max_conjuncts": 2, "max_states": 5, "num_state_nodes": 8, "num_transition_nodes": 8,
+        "max_in": 3}
+GRAPH_CAPS = ("num_state_nodes", "num_transition_nodes", "max_in")
 
 
 def _graph(cdfas, index=0, q=None, **caps):
@@ -26,11 +28,21 @@ def _graph(cdfas, index=0, q=None, **caps):
     caps = {**CAPS, **caps}
     bank = rad.build_bank(cdfas, ALPHABET, **{k: v for k, v in caps.items()
                                               if k in ("max_conjuncts", "max_states")})
-    graphs = enc.build_graphs(bank, **{k: v for k, v in caps.items() if k.startswith("max_n")
-                                       or k.startswith("max_e")})
+    graphs = enc.build_graphs(bank, **{k: v for k, v in caps.items() if k in GRAPH_CAPS})
     q = np.zeros(bank.max_conjuncts, np.int32) if q is None else np.asarray(q, np.int32)
     q = jnp.asarray(np.pad(q, (0, bank.max_conjuncts - q.size)))  # unused conjuncts: state 0
     return enc.graph_of(graphs, bank, index, q)
+
+
+def _edges(g):
+    """(sender, receiver) of every live edge but the self edges."""
+    g = jax.tree.map(np.asarray, g)
+    ns = g.neighbours.shape[0]
+    edges = [(int(g.neighbours[i, d]), i) for i in range(ns)
+             for d in range(1, g.neighbours.shape[1]) if g.neighbour_mask[i, d]]
+    edges += [(int(g.successor[t, 1]), ns + t) for t in range(g.successor.shape[0])
+              if g.successor_mask[t, 1]]
+    return edges
 
 
 def _encoder():
@@ -44,6 +56,9 @@ def test_graph_of_a_hand_built_dfa():
     feats = g.features
     # AND, 4 states (canonical: 0 start, 1 after a, 2 fail, 3 accept), 4 transition nodes
     assert g.node_mask.sum() == 9 and feats.shape == (16, 4 + 6)
+    # every live node attends to itself (slot 0), padding and masked nodes to nothing
+    assert np.array_equal(g.neighbour_mask[:, 0], g.node_mask[:8])
+    assert np.array_equal(g.successor_mask[:, 0], g.node_mask[8:])
     assert feats[0, enc.AND] == 1 and feats[:, enc.AND].sum() == 1
     states = np.flatnonzero(feats[:, enc.NORMAL])
     assert len(states) == 4 and feats[states[0], enc.INIT] == 1 and feats[:, enc.INIT].sum() == 1
@@ -52,7 +67,7 @@ def test_graph_of_a_hand_built_dfa():
     temps = np.flatnonzero(feats[:, enc.TEMP])
     symbol_sets = {tuple(feats[t, :4].astype(int)) for t in temps}
     assert symbol_sets == {(0, 1, 0, 0), (0, 0, 1, 0), (0, 0, 0, 1)}  # a; b (twice); ab
-    edges = {(int(s), int(r)) for s, r, m in zip(g.senders, g.receivers, g.edge_mask) if m}
+    edges = set(_edges(g))
     # each transition s -> e: edge e -> temp and temp -> s; one AND edge from the start state
     for t in temps:
         into = [s for s, r in edges if r == t]
@@ -70,15 +85,15 @@ def _numpy_encoder(params, g):
     """The encoder written out per node with dense loops (one graph)."""
     p = jax.tree.map(lambda x: np.asarray(x, np.float64), params["params"])
     live = np.flatnonzero(g.node_mask)
-    edges = [(int(s), int(r)) for s, r, m in zip(g.senders, g.receivers, g.edge_mask) if m]
-    edges += [(i, i) for i in live]
+    edges = _edges(g) + [(i, i) for i in live]
     h0 = np.asarray(g.features, np.float64) @ p["embed"]["kernel"] + p["embed"]["bias"]
     h = h0.copy()
     gat = p["gat"]
     for _ in range(8):
         x = np.concatenate([h, h0], axis=1)
-        src = (x @ gat["src"]["kernel"] + gat["src"]["bias"]).reshape(len(x), 4, 64)
-        dst = (x @ gat["dst"]["kernel"] + gat["dst"]["bias"]).reshape(len(x), 4, 64)
+        both = x @ gat["kernel"] + gat["bias"]  # W_src and W_dst side by side
+        src = both[:, :256].reshape(len(x), 4, 64)
+        dst = both[:, 256:].reshape(len(x), 4, 64)
         new = np.zeros_like(h)
         for i in live:
             senders = [s for s, r in edges if r == i]
@@ -112,15 +127,20 @@ def test_embedding_depends_on_the_language_only():
     np.testing.assert_allclose(emb(_graph([[renamed, EVENTUALLY_B]])), base, atol=1e-5)
     # conjunct order and padding do not matter
     np.testing.assert_allclose(emb(_graph([[EVENTUALLY_B, HAND]])), base, atol=1e-5)
-    padded = _graph([[HAND, EVENTUALLY_B]], max_conjuncts=3, max_states=7, max_nodes=19,
-                    max_edges=23)
+    padded = _graph([[HAND, EVENTUALLY_B]], max_conjuncts=3, max_states=7, num_state_nodes=10,
+                    num_transition_nodes=9, max_in=4)
     np.testing.assert_allclose(emb(padded), base, atol=1e-5)
-    # node order (AND stays node 0) does not matter
-    g = _graph([[HAND, EVENTUALLY_B]])
-    order = np.r_[0, 1 + np.random.default_rng(0).permutation(g.node_mask.shape[0] - 1)]
-    where = np.argsort(order)
-    shuffled = enc.Graph(g.features[order], g.node_mask[order], where[np.asarray(g.senders)],
-                         where[np.asarray(g.receivers)], g.edge_mask)
+    # node order (AND stays node 0, each block keeps its nodes) and slot order do not matter
+    g = jax.tree.map(np.asarray, _graph([[HAND, EVENTUALLY_B]]))
+    rng = np.random.default_rng(0)
+    ns, nt = g.neighbours.shape[0], g.successor.shape[0]
+    order = np.r_[0, 1 + rng.permutation(ns - 1), ns + rng.permutation(nt)]  # new -> old
+    where = np.argsort(order)  # old -> new
+    slots = np.r_[0, 1 + rng.permutation(g.neighbours.shape[1] - 1)]
+    shuffled = enc.Graph(g.features[order], g.node_mask[order],
+                         where[g.neighbours[order[:ns]]][:, slots],
+                         g.neighbour_mask[order[:ns]][:, slots],
+                         where[g.successor[order[ns:] - ns]], g.successor_mask[order[ns:] - ns])
     np.testing.assert_allclose(emb(shuffled), base, atol=1e-5)
     # advancing masks the graph into that of the minimised residual DFA
     residual = rad.minimise(rad.DFA(HAND.delta, HAND.accepting, 1))[0]
