@@ -14,9 +14,9 @@ function, and a value-weighted search over the automaton at test time.
    edge costs `1 - V` (critic for the first goal, GCVF for pairs), and the original's safety
    rule composes the action when an avoided proposition looks closer than the goal.
 
-LetterWorld uses the project's grid encoder and the world's 4 moves. On ZoneEnv the original
-chooses among 4 frozen direction primitives; here the policy acts in the world's continuous
-action space directly (docs/fidelity.md).
+LetterWorld uses the project's grid encoder and the world's 4 moves. Zone robots act, as the
+original, through 4 frozen direction primitives (`gcrl_primitives`), trained on device before the
+policy (`prepare_training`); other continuous worlds (the arm) get a Gaussian head.
 """
 
 from __future__ import annotations

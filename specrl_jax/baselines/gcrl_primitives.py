@@ -63,7 +63,7 @@ def primitive_action(network: PrimitiveNetwork, primitives: Any, index: jax.Arra
                      sensors: jax.Array, temperature: float) -> jax.Array:
     """The mean action of primitive `index` (int32[]) times `temperature`, clipped to [-1, 1];
     `primitives` holds the four primitives' parameters on a leading axis."""
-    params = jax.tree.map(lambda x: x[index], primitives)
+    params = jax.tree.map(lambda x: jnp.asarray(x)[index], primitives)
     return jnp.clip(network.apply(params, sensors).pi.mean * temperature, -1.0, 1.0)
 
 
