@@ -1,0 +1,230 @@
+"""Pretraining RAD-Embeddings' encoder on the symbol-only task, through the shared PPO.
+
+The original (`Dummy-MDP-v0` / `Simple-LTL-Env-v0`): no observation; the action names the symbol
+that occurs this step; the task is a RAD conjunction of DFAs, +1 and the end of the episode when
+every DFA accepts, -1 and the end when one can no longer accept; horizon 75 (Letter) / 1000
+(Zone). Here `SymbolWorld` is that world over any alphabet (its action is an alphabet row,
+including the empty assignment, a no-op for RAD DFAs), run by the one task loop over a
+`DFASource`. The network is the GATv2 encoder with linear actor and critic heads (`--dumb-ac`).
+PPO as the original: gamma 0.9, GAE lambda 0.5, lr 1e-3, clip 0.1, 2 epochs, entropy 0.01,
+16 envs x 512 steps in minibatches of 1,024, 10M steps.
+
+The encoder's parameters are saved as `specrl_jax/baselines/data/rad_encoder_<family>.msgpack`
+(`save_encoder`, `load_encoder`) with a JSON beside it saying how they were made.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import serialization, struct
+
+from specrl_jax.automata import rad_sampler
+from specrl_jax.automata.rad_sampler import DFABank
+from specrl_jax.baselines.ppo.networks import Categorical, PolicyOutput
+from specrl_jax.baselines.ppo.train import PPOConfig
+from specrl_jax.baselines.rad_encoder import (
+    NUM_FLAGS,
+    GraphBank,
+    RADEncoder,
+    build_graphs,
+    graph_of,
+    num_features,
+    unit_columns,
+)
+from specrl_jax.baselines.train_env import TaskTrainEnv
+from specrl_jax.envs.spaces import Discrete
+from specrl_jax.tasks import TaskEnv
+from specrl_jax.tasks.dfa_source import DFASource
+
+DATA_DIR = Path(__file__).parent / "data"
+#: the symbol task's horizon per world family (the original's Simple-LTL envs)
+HORIZONS = {"letter": 75, "zone": 1000}
+#: graph nodes of a sampled conjunction at most (about the 97th percentile over 12 letters;
+#: larger draws are redrawn, docs/fidelity.md): the encoder's cost grows with the padded size
+MAX_GRAPH_NODES = 40
+
+
+@struct.dataclass
+class SymbolParams:
+    max_steps: int = 75
+
+
+@struct.dataclass
+class SymbolState:
+    time: jax.Array  # int32[]
+
+
+class SymbolWorld:
+    """A world without observation whose action is the alphabet row that holds this step.
+
+    Observation: `{}`. Action: int32[] in 0..A-1. Labels: `alphabet[action]`, reported with
+    `info["symbol"]`. Never terminates; truncated at `params.max_steps` by the task loop.
+    """
+
+    obs_kinds: dict[str, str] = {}
+
+    def __init__(self, alphabet: np.ndarray, propositions: tuple[str, ...], max_steps: int = 75):
+        self._alphabet = jnp.asarray(np.asarray(alphabet, bool))
+        self.propositions = tuple(propositions)
+        self._max_steps = int(max_steps)
+
+    @property
+    def alphabet(self) -> jax.Array:
+        return self._alphabet
+
+    @property
+    def num_propositions(self) -> int:
+        return len(self.propositions)
+
+    @property
+    def default_params(self) -> SymbolParams:
+        return SymbolParams(self._max_steps)
+
+    @property
+    def action_space(self) -> Discrete:
+        return Discrete(int(self._alphabet.shape[0]))
+
+    def reset(self, key: jax.Array, params: Any = None) -> tuple[dict, SymbolState]:
+        return {}, SymbolState(jnp.zeros((), jnp.int32))
+
+    def step(self, key: jax.Array, state: SymbolState, action: jax.Array, params: Any = None):
+        symbol = jnp.clip(jnp.asarray(action, jnp.int32), 0, self._alphabet.shape[0] - 1)
+        info = {"propositions": self._alphabet[symbol], "symbol": symbol}
+        no = jnp.zeros((), bool)
+        return {}, SymbolState(state.time + 1), jnp.zeros(()), no, no, info
+
+
+class DFAObs(NamedTuple):
+    """A task as the pretraining network reads it: conjunction `index` int32[] of the bank and
+    the state of each conjunct `q` int32[N] (leading batch axes allowed)."""
+
+    index: jax.Array
+    q: jax.Array
+
+
+class Banks:
+    """A DFA bank and its graphs, held by a network as one static attribute (by identity)."""
+
+    def __init__(self, bank: DFABank, graphs: GraphBank):
+        self.bank, self.graphs = bank, graphs
+
+    def graph(self, obs: DFAObs):
+        """The graphs of a batch of tasks (any leading axes)."""
+        batch = obs.index.shape
+        index, q = obs.index.reshape(-1), obs.q.reshape(-1, obs.q.shape[-1])
+        g = jax.vmap(graph_of, in_axes=(None, None, 0, 0))(self.graphs, self.bank, index, q)
+        return jax.tree.map(lambda x: x.reshape(*batch, *x.shape[1:]), g)
+
+
+class PretrainNetwork(nn.Module):
+    """The encoder (submodule `encoder`) with a linear actor over the A symbols and a linear
+    critic, as the original's `--dumb-ac`."""
+
+    banks: Banks
+    num_actions: int
+    hidden: int = 64  # the encoder's sizes (the original's by default)
+    num_layers: int = 8
+
+    @nn.compact
+    def __call__(self, obs: DFAObs) -> PolicyOutput:
+        encoder = RADEncoder(self.hidden, num_layers=self.num_layers, name="encoder")
+        emb = encoder(self.banks.graph(obs))
+        logits = nn.Dense(self.num_actions, kernel_init=unit_columns, name="actor")(emb)
+        value = nn.Dense(1, kernel_init=unit_columns, name="critic")(emb)[..., 0]
+        zeros = jnp.zeros_like(value)
+        return PolicyOutput(Categorical(logits), value, zeros, zeros)
+
+
+class RADPretrain:
+    """The symbol task as a method for the shared trainer."""
+
+    def __init__(self, env: TaskTrainEnv, network: PretrainNetwork):
+        self.env, self.network = env, network
+
+    def init_task_params(self) -> None:
+        return None
+
+    def update_task_params(self, task_params: Any, stats: dict[str, jax.Array]) -> Any:
+        return task_params
+
+
+def signals(info: dict[str, Any]) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """RAD's reward: +1 on success, -1 on violation, else 0."""
+    reward = info["success"].astype(jnp.float32) - info["violation"].astype(jnp.float32)
+    return reward, jnp.zeros((), jnp.float32), jnp.zeros((), bool)
+
+
+def make_pretrain(alphabet: np.ndarray, propositions: tuple[str, ...], family: str = "letter",
+                  bank_size: int = 8192, seed: int = 0, bank: DFABank | None = None,
+                  max_size: int | None = MAX_GRAPH_NODES, **encoder_sizes: int) -> RADPretrain:
+    """The symbol task over `alphabet` on a bank of `bank_size` RAD conjunctions (or `bank`) of
+    graphs of at most `max_size` nodes; `encoder_sizes` (hidden, num_layers) for small tests."""
+    if family not in HORIZONS:
+        raise ValueError(f"unknown world family {family!r}; accepted: {sorted(HORIZONS)}")
+    world = SymbolWorld(alphabet, propositions, HORIZONS[family])
+    if bank is None:
+        bank = rad_sampler.sample_bank(bank_size, alphabet, seed, max_size)
+    banks = Banks(bank, build_graphs(bank))
+
+    def observe(obs, state):
+        return DFAObs(state.task.index, state.task.q)
+
+    task = TaskEnv(world, DFASource(bank, world.alphabet), observe)
+    network = PretrainNetwork(banks, int(world.alphabet.shape[0]), **encoder_sizes)
+    return RADPretrain(TaskTrainEnv(task, world.default_params, signals), network)
+
+
+def pretrain_config(**overrides: Any) -> PPOConfig:
+    """The original's pretraining PPO (`--dumb-ac`): 16 x 512 steps, minibatch 1,024, 2 epochs,
+    lr 1e-3, gamma 0.9, GAE 0.5, clip 0.1, entropy 0.01, value 0.5, 10M steps."""
+    settings = {"num_envs": 16, "num_steps": 512, "num_minibatches": 8, "update_epochs": 2,
+                "lr": 1e-3, "gamma": 0.9, "gae_lambda": 0.5, "clip_eps": 0.1, "ent_coef": 0.01,
+                "vf_coef": 0.5, "total_timesteps": 10_000_000}
+    return PPOConfig(**{**settings, **overrides})
+
+
+def encoder_params(params: Any) -> Any:
+    """The encoder's part of a pretraining network's parameters."""
+    return {"params": params["params"]["encoder"]}
+
+
+def encoder_path(family: str) -> Path:
+    return DATA_DIR / f"rad_encoder_{family}.msgpack"
+
+
+def save_encoder(path: str | Path, params: Any, meta: dict[str, Any]) -> None:
+    """Write encoder parameters (msgpack) and `meta` (JSON, same name with .json)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(serialization.to_bytes(jax.device_get(params)))
+    path.with_suffix(".json").write_text(json.dumps(meta, indent=1) + "\n")
+
+
+def load_encoder(family_or_path: str | Path, num_symbols: int) -> Any:
+    """Encoder parameters for an alphabet of `num_symbols` symbols, from the shipped file of a
+    world family ("letter", "zone") or a path.
+
+    Raises:
+        ValueError: no such file, or the file is for another alphabet size.
+    """
+    path = (encoder_path(str(family_or_path)) if str(family_or_path) in HORIZONS
+            else Path(family_or_path))
+    if not path.exists():
+        raise ValueError(f"no pretrained RAD encoder at {path}; make one with "
+                         "`python benchmarks/rad_pretrain.py` (see its docstring)")
+    stored = serialization.msgpack_restore(path.read_bytes())
+    try:
+        width = np.shape(stored["params"]["embed"]["kernel"])[0]
+    except (KeyError, TypeError):
+        raise ValueError(f"{path} holds no RAD encoder parameters") from None
+    if width != num_features(num_symbols):
+        raise ValueError(f"the encoder at {path} reads {width - NUM_FLAGS} symbols; the "
+                         f"alphabet has {num_symbols}")
+    return jax.tree.map(jnp.asarray, stored)
