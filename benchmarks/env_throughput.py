@@ -11,7 +11,8 @@ Compile time is measured apart; the run is timed after one warm-up call, with
   off    no auto-reset (the raw step, for reference: what resets cost).
 
 `--physics warp` builds Zone envs with MuJoCo Warp through MJX (needs warp-lang) instead of MJX's
-JAX implementation; the env column then reads e.g. `CarLTL0-v0 (warp)`.
+JAX implementation; the env column then reads e.g. `CarLTL0-v0 (warp)`. `--solver KEY=VALUE ...`
+overrides fields of a Zone env's physics settings (`zone.Solver`), named in the env column too.
 
 Results are appended to benchmarks/RESULTS.md (or --results) with device, versions, date, command.
 """
@@ -19,6 +20,7 @@ Results are appended to benchmarks/RESULTS.md (or --results) with device, versio
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import os
 import platform
@@ -67,6 +69,13 @@ def measure(
     env_id: str, mode: str, num_envs: int, args: argparse.Namespace
 ) -> dict[str, Any] | None:
     env, params = specrl_jax.make(env_id, **({"physics": args.physics} if args.physics else {}))
+    if args.solver:
+        if not hasattr(getattr(env, "config", None), "solver"):
+            return None
+        solver = dataclasses.replace(env.config.solver, **args.solver)
+        env, params = specrl_jax.make(
+            env_id, solver=solver, **({"physics": args.physics} if args.physics else {})
+        )
     key_bank, key_reset, key_run = jax.random.split(jax.random.key(args.seed), 3)
     if mode == "bank":
         if not hasattr(env, "with_map_bank"):
@@ -89,8 +98,10 @@ def measure(
         state, total = jax.block_until_ready(compiled(jax.random.fold_in(key_run, repeat), state))
         times.append(time.perf_counter() - start)
     steps = num_envs * args.steps
+    settings = [args.physics] if args.physics else []
+    settings += [f"{k}={v}" for k, v in args.solver.items()]
     return {
-        "env": env_id + (f" ({args.physics})" if args.physics else ""),
+        "env": env_id + (f" ({', '.join(settings)})" if settings else ""),
         "reset": mode,
         "batch": num_envs,
         "steps": args.steps,
@@ -118,7 +129,8 @@ def results_header(args: argparse.Namespace) -> str:
         "",
         f"## Env throughput: {device_name()}, {datetime.date.today().isoformat()}",
         "",
-        f"Versions: {versions}. Host: {platform.machine()}, {os.cpu_count()} CPU cores.",
+        f"Versions: {versions}. Host: {platform.machine()}, {os.cpu_count()} CPU cores."
+        + (f" XLA_FLAGS: `{os.environ['XLA_FLAGS']}`." if os.environ.get("XLA_FLAGS") else ""),
         f"Command: `{shlex.join(['python', *sys.argv])}`",
         "",
         "| env | reset | batch | steps/call | env-steps/s (best) | env-steps/s (median) | compile s | bank build s |",
@@ -141,6 +153,18 @@ def append(path: str, text: str) -> None:
         f.write(text)
 
 
+def _override(pair: str, parser: argparse.ArgumentParser) -> tuple[str, Any]:
+    key, sep, value = pair.partition("=")
+    if not sep or not key:
+        parser.error(f"--solver takes KEY=VALUE pairs, got {pair!r}")
+    if value in ("True", "False"):
+        return key, value == "True"
+    try:
+        return key, int(value)
+    except ValueError:
+        return key, value
+
+
 def parse_args() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", default=None, help="env IDs (default: all registered)")
@@ -160,8 +184,14 @@ def parse_args() -> argparse.Namespace:
         "--physics", choices=["jax", "warp"], default=None,
         help="physics backend of Zone envs (default: the env's, jax)",
     )
+    parser.add_argument(
+        "--solver", nargs="*", default=[], metavar="KEY=VALUE",
+        help="Zone envs: overrides of the env's `Solver` fields (ints, True/False or names), "
+        "e.g. max_contacts=0 substep_sensors=True for the settings before issue 18",
+    )
     parser.add_argument("--results", default="benchmarks/RESULTS.md")
     args = parser.parse_args()
+    args.solver = dict(_override(pair, parser) for pair in args.solver)
     known = specrl_jax.list_envs()
     args.envs = args.envs or known
     unknown = [e for e in args.envs if e not in known]

@@ -11,13 +11,15 @@ differences).
 Throughput: 10 physics steps + a forward pass per env step (`Physics.step`), batched, no LiDAR,
 labels or resets: what the physics alone allows. `--physics warp` measures MuJoCo Warp through MJX
 (needs warp-lang). `--mjx-frame` gives MJX-JAX MJX 3.17's own capsule-plane contact frame instead
-of MuJoCo C's (the Ant before `contact_frame.py`; A/B only). Results are appended to
+of MuJoCo C's (the Ant before `contact_frame.py`; A/B only). `--set KEY=VALUE ...` overrides
+other `Solver` fields (e.g. `max_contacts=4`). Results are appended to
 benchmarks/RESULTS.md.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import shlex
 import sys
@@ -34,12 +36,18 @@ import mujoco
 import numpy as np
 
 from specrl_jax.envs.zone import make_zone
-from specrl_jax.envs.zone.config import level_config
+from specrl_jax.envs.zone.config import DEFAULT_SOLVERS, level_config
 from specrl_jax.envs.zone.models import Solver
+
+
+#: Solver field overrides from `--set`, applied on top of the robot's default or `--solver`.
+OVERRIDES: dict = {}
 
 
 def zone_env(robot: str, solver: Solver | None, physics: str, mjx_frame: bool = False):
     """(env, params) of the robot's level-0 world; `mjx_frame`: MJX's own capsule frame."""
+    if OVERRIDES:
+        solver = dataclasses.replace(solver or DEFAULT_SOLVERS[robot], **OVERRIDES)
     env, params = make_zone(level_config(robot, 0, solver=solver, physics=physics))
     if mjx_frame:
         env.physics.c_contact_frame = False
@@ -157,8 +165,16 @@ def main() -> None:
         default=0,
         help="fidelity from the state after this many C substeps at rest",
     )
+    parser.add_argument(
+        "--set", nargs="*", default=[], metavar="KEY=VALUE",
+        help="overrides of Solver fields (ints or True/False) on top of the robot's default or "
+        "--solver, e.g. max_contacts=4",
+    )
     parser.add_argument("--results", default="benchmarks/RESULTS.md")
     args = parser.parse_args()
+    args.set = {k: (v == "True" if v in ("True", "False") else int(v))
+                for k, _, v in (pair.partition("=") for pair in args.set)}
+    OVERRIDES.update(args.set)
     device = jax.devices()[0]
     lines = [
         "",
@@ -181,6 +197,8 @@ def main() -> None:
         if solver is None
         else (f"iterations {solver.iterations}, ls {solver.ls_iterations}, condim {solver.condim}")
     )
+    if args.set:
+        label += ", " + ", ".join(f"{k}={v}" for k, v in args.set.items())
     if args.steps:
         lines += [
             f"Solver: {label}."

@@ -12,7 +12,8 @@ random-action env steps (so contacts are live), then times, on whatever device J
   integration  the integrator's update after the forward pass (Euler: damping-implicit velocity
                and position update; RK4: the final combination, its stage evaluations are
                forward passes)
-  forward      mjx.forward whole (the sum of the stages above but integration, as fused by XLA)
+  forward      mjx.forward whole, as the substeps run it (the stages above but integration, and
+               the sensors only with `substep_sensors`, as fused by XLA)
   env step     `ZoneEnv.step_env` (physics, LiDAR, labels, termination); env own code: the
                LiDAR, sensors read-out, labels and termination alone; reset: `ZoneEnv.reset`
                (an exact layout and a forward pass), which auto-reset runs for B/32 worlds a step
@@ -21,7 +22,8 @@ Each stage is a `vmap` over the batch inside a `lax.fori_loop` of `--loops` appl
 output fed back as its input, so XLA cannot hoist it), timed as the best of `--repeats` calls after
 a warm-up; "ms" is per application. "x per env step" is how often the env step runs the stage
 (Euler: 11 forward passes; RK4: 4 per substep + 1), and "share" that count times the stage's time
-over the env step's. Writes a JSON to `--out`.
+over the env step's (sensors: once, in the forward pass after the last substep, unless the
+solver's `substep_sensors`). Writes a JSON to `--out` after each robot.
 
 Usage: python benchmarks/zone_profile.py --robots Car Ant --batch 16384 --out /tmp/profile.json
        [--solver KEY=VALUE ...] (overrides of the robot's default `Solver`, e.g. contacts=tips)
@@ -146,11 +148,15 @@ def profile(robot: str, batch: int, warm: int, loops: int, repeats: int,
     data = forward_c(data)
     rk4 = model.opt.integrator == IntegratorType.RK4
     forwards = 10 * (4 if rk4 else 1) + 1
-    counts = {"integration": 10}
+    # the substeps run `substep_model` (sensors off unless `substep_sensors`), the last forward
+    # pass `model`; "forward" is timed as the substeps run it
+    counts = {"integration": 10, "sensors": forwards if solver_cfg.substep_sensors else 1}
     for name, stage in STAGES.items():
-        def looped(d, stage=stage):
+        stage_model = physics.substep_model if name == "forward" else model
+
+        def looped(d, stage=stage, stage_model=stage_model):
             return jax.lax.fori_loop(0, loops, lambda _, x: jax.vmap(
-                lambda y: stage(model, y))(x), d)
+                lambda y: stage(stage_model, y))(x), d)
 
         compiled, compile_s = _compile(looped, (data,), scope)
         rows[name] = {"ms": 1e3 * _best(compiled, (data,), repeats) / loops,

@@ -270,8 +270,10 @@ def test_mjx_ant_contact_accelerations_agree_with_c():
     MJX forward pass equals MuJoCo C's with the original's pyramidal cone and with an elliptic
     one. MJX 3.17's own capsule frame (world y as first tangent) departs by ~12% of qacc under
     the pyramidal cone, which is not rotation-invariant (benchmarks/zone_contact_diff.py)."""
-    for cone, c_frame in (("pyramidal", True), ("elliptic", True), ("pyramidal", False)):
-        model = load_model("Ant", Solver(8, 4, 6, cone=cone))
+    variants = (("pyramidal", True, 0), ("elliptic", True, 0), ("pyramidal", False, 0),
+                ("pyramidal", True, 4))
+    for cone, c_frame, cap in variants:
+        model = load_model("Ant", Solver(8, 4, 6, cone=cone, max_contacts=cap))
         data = mujoco.MjData(model)
         data.qpos[:] = model.qpos0
         for _ in range(100):
@@ -285,6 +287,7 @@ def test_mjx_ant_contact_accelerations_agree_with_c():
         with scope:
             x = forward(mjx.put_model(model), mjx.put_data(model, data))
         contact = x._impl.contact
+        assert contact.dist.shape == ((cap or 17),)  # the cap: 4 contact slots instead of 17
         live = np.asarray(contact.dist) < np.asarray(contact.includemargin)
         frames = np.asarray(contact.frame)[live].reshape(-1, 9)
         error = np.abs(np.asarray(x.qacc) - data.qacc).max() / np.abs(data.qacc).max()
@@ -329,3 +332,68 @@ def test_mjx_ant_tracks_mujoco_c():
                 worst[i + 1] = max(worst[i + 1], np.abs(qpos[7:] - data.qpos[7:]).max())
         assert contacts >= 2  # the feet hit the floor (it bounces: contacts come and go)
     assert (worst < [1e-4, 1e-3, 2e-4, 5e-4]).all(), worst
+
+
+_BOX = """<mujoco><option timestep="0.004" {custom}/><worldbody><geom type="plane" size="2 2 .1"/>
+<body pos="0 0 0.05"><freejoint/><geom type="box" size=".05 .05 .05"/><site name="s"/>
+<body pos="0.1 0 0"><joint name="hinge" axis="0 1 0" range="-1 1" limited="true"/>
+<geom type="capsule" fromto="0 0 0 0.1 0 0" size=".02"/></body></body></worldbody>
+<actuator><motor joint="hinge" gear="2"/></actuator>
+<sensor><accelerometer site="s"/><gyro site="s"/><jointpos joint="hinge"/></sensor></mujoco>"""
+
+
+def test_sensor_free_substeps_and_unroll_give_the_same_steps():
+    """Skipping the sensors in the substeps (the default) and unrolling the substep loop give
+    bitwise the same physics and sensors as MJX's own `step` with sensors in every substep and
+    a plain loop (a box with a hinged capsule on the floor, 3 env steps)."""
+    model = mujoco.MjModel.from_xml_string(_BOX.format(custom=""))
+    runs = {}
+    for name, kw in (("mjx", dict(substep_sensors=True)), ("ours", dict(unroll=3))):
+        physics = Physics(model, **kw)
+        state = jax.jit(physics.init)(jnp.asarray(model.qpos0, jnp.float32))
+        step = jax.jit(physics.step)
+        out = []
+        for ctrl in (1.0, -1.0, 0.5):
+            state = step(state, jnp.array([ctrl]))
+            out.append(np.concatenate([np.asarray(state.qpos), np.asarray(state.sensordata)]))
+        runs[name] = np.array(out)
+    assert physics.substep_model is not physics.model
+    np.testing.assert_array_equal(runs["ours"], runs["mjx"])
+    assert np.abs(runs["mjx"][1:, -3:] - runs["mjx"][:-1, -3:]).max() > 1e-3  # sensors change
+    accelerometer = runs["mjx"][:, model.nq:model.nq + 3]
+    assert np.abs(accelerometer).max() > 1.0  # computed, not left at zero
+
+
+@pytest.mark.parametrize("robot, episodes, steps", [("Car", 2, 400), ("Ant", 4, 250)])
+def test_solver_contact_cap_drops_no_contact_of_a_live_robot(robot, episodes, steps):
+    """`DEFAULT_SOLVERS[robot].max_contacts` (MJX passes only that many contacts, the deepest,
+    to the solver) is never exceeded in MuJoCo C while the robot is live: episodes of uniform,
+    bang-bang (held 5 steps) and sinusoidal actions from the env's start pose, every substep,
+    until the Ant's fall (torso <= 0.08 m) ends one; the cap is reached, so it is no larger than
+    needed."""
+    model = load_model(robot, DEFAULT_SOLVERS[robot])
+    cap = DEFAULT_SOLVERS[robot].max_contacts
+    data = mujoco.MjData(model)
+    most = 0
+    for episode in range(episodes):
+        rng = np.random.default_rng(episode)
+        mujoco.mj_resetData(model, data)
+        data.qpos[:] = start_qpos(robot, rng)
+        data.qpos[2] = start_height(robot, model)
+        phase = rng.uniform(0, 2 * np.pi, model.nu)
+        for t in range(steps):
+            mode = episode % 3
+            if mode == 0:
+                data.ctrl[:] = rng.uniform(-1, 1, model.nu)
+            elif mode == 1 and t % 5 == 0:
+                data.ctrl[:] = rng.choice([-1.0, 1.0], model.nu)
+            elif mode == 2:
+                data.ctrl[:] = np.sin(0.2 * np.pi * t + phase)
+            counts = []
+            for _ in range(10):
+                mujoco.mj_step(model, data)
+                counts.append(data.ncon)
+            if robot == "Ant" and data.xpos[1][2] <= 0.08:
+                break
+            most = max(most, *counts)
+    assert most == cap, (robot, most, cap)

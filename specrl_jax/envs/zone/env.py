@@ -83,7 +83,9 @@ class ZoneEnv(Env):
         self.propositions = config.propositions
         self._num_parallel = check_feasible(config)
         self.mj_model = load_model(config.robot, config.solver)
-        self.physics = Physics(self.mj_model, config.physics)
+        self.physics = Physics(
+            self.mj_model, config.physics, config.solver.substep_sensors, config.solver.unroll
+        )
         self.start_height = start_height(config.robot, self.mj_model)
         self.frame_dt = SUBSTEPS * float(self.mj_model.opt.timestep)
         self.motion = make_motion(

@@ -27,6 +27,13 @@ class Solver:
     rotation-invariant, so the contact problems would differ. The default `physics="jax"` traces
     these contacts with C's frame (`contact_frame.py`); MuJoCo Warp keeps its own. An elliptic
     cone with isotropic friction is the same problem under either frame.
+
+    Speed settings of MJX-JAX (MuJoCo C runs the same model without them):
+    `max_contacts` > 0 passes only the K deepest contacts of each step to the solver (MJX's
+    `max_contact_points`; 0: every contact slot, each a block of constraint rows whether it
+    touches or not); it changes nothing while at most K contacts penetrate. `substep_sensors`
+    False skips the sensors in the physics substeps (only the forward pass after the last one
+    feeds the observation; sensors never act on the dynamics). `unroll` unrolls the substep loop.
     """
 
     iterations: int = 100
@@ -34,16 +41,30 @@ class Solver:
     condim: int = 6
     prune_contacts: bool = True
     cone: str = "pyramidal"
+    max_contacts: int = 0
+    substep_sensors: bool = False
+    unroll: int = 1
 
     def __post_init__(self) -> None:
         if self.cone not in ("pyramidal", "elliptic"):
             raise ValueError(f"cone must be 'pyramidal' or 'elliptic', got {self.cone!r}")
+        for name, low in (("max_contacts", 0), ("unroll", 1)):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < low:
+                raise ValueError(f"{name} must be an int >= {low}, got {value!r}")
 
     def option(self) -> str:
         return (
             f'iterations="{self.iterations}" ls_iterations="{self.ls_iterations}" '
             f'cone="{self.cone}"'
         )
+
+    def custom(self) -> str:
+        """MJX's `max_contact_points` numeric (MuJoCo C ignores it), or nothing."""
+        if not self.max_contacts:
+            return ""
+        numeric = f'<numeric name="max_contact_points" data="{self.max_contacts}"/>'
+        return f"<custom>{numeric}</custom>"
 
     def floor(self) -> str:
         bits = 'contype="0" conaffinity="1"' if self.prune_contacts else ""
@@ -123,6 +144,7 @@ def point_xml(solver: Solver) -> str:
     return f"""
 <mujoco model="zone_point">
   <option timestep="0.002" {solver.option()}/>
+  {solver.custom()}
   <worldbody>
     {solver.floor()}
     <body name="agent" pos="0 0 0.1">
@@ -154,6 +176,7 @@ def car_xml(solver: Solver) -> str:
     return f"""
 <mujoco model="zone_car">
   <option timestep="0.004" {solver.option()}/>
+  {solver.custom()}
   <worldbody>
     {solver.floor()}
     <body name="agent" pos="0 0 0.1">
@@ -242,6 +265,7 @@ def ant_xml(solver: Solver) -> str:
 <mujoco model="zone_ant">
   <compiler angle="radian" inertiafromgeom="true"/>
   <option timestep="0.01" integrator="RK4" {solver.option()}/>
+  {solver.custom()}
   <worldbody>
     {solver.floor()}
     <body name="agent" pos="0 0 0.18">

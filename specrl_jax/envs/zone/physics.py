@@ -26,6 +26,9 @@ from flax import struct
 from specrl_jax.envs.zone import contact_frame
 from specrl_jax.envs.zone.mjx_import import mjx
 
+# isort: split
+from mujoco.mjx._src.types import DisableBit
+
 #: Accepted values of `ZoneConfig.physics`.
 BACKENDS = ("jax", "warp")
 SUBSTEPS = 10
@@ -80,6 +83,10 @@ class Physics:
         model: the robot's MuJoCo model.
         backend: "jax" (MJX's JAX implementation, any device) or "warp" (MuJoCo Warp
             through MJX: a CUDA GPU, or a CPU where warp-lang has its CPU compiler).
+        substep_sensors: evaluate the model's sensors in every substep (MJX's `step` does);
+            False (default) evaluates them only in the forward pass after the last substep,
+            the only one the env reads; the dynamics are the same (backend "jax" only).
+        unroll: how many substeps one iteration of the substep loop runs (`lax.scan`).
 
     Attributes:
         c_contact_frame: whether capsule-plane contacts are traced with MuJoCo C's frame (backend
@@ -91,7 +98,10 @@ class Physics:
             collider table is not laid out as `contact_frame` expects.
     """
 
-    def __init__(self, model: mujoco.MjModel, backend: str = "jax"):
+    def __init__(
+        self, model: mujoco.MjModel, backend: str = "jax", substep_sensors: bool = False,
+        unroll: int = 1,
+    ):
         if backend not in BACKENDS:
             raise ValueError(f"unknown physics backend {backend!r}; accepted: {BACKENDS}")
         if backend == "warp" and not warp_available():
@@ -102,6 +112,13 @@ class Physics:
         self.backend = backend
         self.mj_model = model
         self.model = mjx.put_model(model, impl=backend)
+        self.unroll = unroll
+        self.substep_model = self.model
+        if backend == "jax" and not substep_sensors:
+            flags = int(self.model.opt.disableflags) | int(DisableBit.SENSOR)
+            self.substep_model = self.model.replace(
+                opt=self.model.opt.replace(disableflags=DisableBit(flags))
+            )
         if backend == "warp":
             # Warp prints a line per world and step when a cap is hit (line-search iterations,
             # contacts); across 65,536 worlds that floods the output. The caps still apply.
@@ -170,7 +187,10 @@ class Physics:
         data = template.replace(
             qpos=state.qpos, qvel=state.qvel, qacc_warmstart=state.qacc_warmstart, ctrl=ctrl
         )
-        data = jax.lax.fori_loop(0, substeps, lambda _, d: mjx.step(self.model, d), data)
+        data, _ = jax.lax.scan(
+            lambda d, _: (mjx.step(self.substep_model, d), None), data, None, length=substeps,
+            unroll=max(1, min(self.unroll, substeps)),
+        )
         data = mjx.forward(self.model, data)
         if self._add_sensor_acc:
             data = mjx.sensor_acc(self.model, data)
