@@ -219,8 +219,8 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
 
 @command(
     "train",
-    "Train a baseline (GenZ-LTL, DeepLTL or LTL2Action) with the shared PPO on any single-agent "
-    "world; writes a run directory.",
+    "Train a baseline (GenZ-LTL, DeepLTL, LTL2Action or GCRL-LTL) with the shared PPO on any "
+    "single-agent world; writes a run directory.",
     arg("--method", required=True, choices=("genz", "deepltl", "ltl2action", "gcrl")),
     arg("--env", default="LetterLTL0-v0", help="any single-agent env ID (`specrl-jax envs`)"),
     arg("--seeds", type=positive_int, default=1, help="independent runs trained side by side"),
@@ -255,7 +255,7 @@ def train_command(args: argparse.Namespace) -> int:
           f"{summary['env_steps_per_s']:,.0f} env-steps/s; run directory {out}")
     if args.eval_episodes > 0:
         results = experiment.evaluate(args.method, args.env, params,
-                                      experiment.SUITES[world_family], args.eval_episodes)
+                                      experiment.suites_for(args.env), args.eval_episodes)
         report.write_json(out / "eval.json", results, {"train": summary})
         print(report.markdown_tables(results))
     print(f"wrote {out}/: config.json, metrics.jsonl, checkpoint.msgpack, params.msgpack, "

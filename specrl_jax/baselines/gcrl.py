@@ -107,7 +107,8 @@ class GCRLNetwork(nn.Module):
         x = dense(x.shape[-1], np.sqrt(2))(x)
         for width in self.trunk:
             x = nn.relu(dense(width, np.sqrt(2))(x))
-        pi = GaussianHead(self.num_actions)(x) if self.continuous else DiscreteHead(self.num_actions)(x)
+        head = GaussianHead if self.continuous else DiscreteHead
+        pi = head(self.num_actions)(x)
         value = dense(1, 1.0)(x)[..., 0]
         zeros = jnp.zeros_like(value)
         return PolicyOutput(pi, value, zeros, zeros)
@@ -247,7 +248,8 @@ class ValueData(NamedTuple):
     valid: jax.Array
 
 
-def collect_value_data(method: GCRL, policy_params: Any, key: jax.Array, cfg: ValueConfig) -> ValueData:
+def collect_value_data(method: GCRL, policy_params: Any, key: jax.Array, cfg: ValueConfig
+                       ) -> ValueData:
     """Roll the trained policy (sampled actions) in `cfg.num_envs` envs for `cfg.num_steps` steps
     and label the states of the trajectories that reached their goal (each kept with
     probability `keep_prob`) with the critic's value of every other goal."""
@@ -431,7 +433,8 @@ def safe_action(network: nn.Module, out: PolicyOutput, goal: jax.Array, avoid: j
         away = jnp.clip(out.pi.mean[index] * has_goal - out.pi.mean[worst], -1.0, 1.0)
         return jnp.where(turn, away, chosen)
     toward = jnp.argmax(out.pi.logits[worst])
-    masked = jnp.where(jnp.arange(out.pi.logits.shape[-1]) == toward, -jnp.inf, out.pi.logits[index])
+    actions = jnp.arange(out.pi.logits.shape[-1])
+    masked = jnp.where(actions == toward, -jnp.inf, out.pi.logits[index])
     other, safe = jnp.argmax(masked), jnp.argmin(out.pi.logits[worst])
     if not network.primitive_sensors:
         return jnp.where(turn, jnp.where(has_goal, other, safe), chosen).astype(chosen.dtype)
@@ -507,14 +510,17 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
     def init(params, obs, task_state, key):
         parts = obs_parts(obs, kinds)
         start = all_goals(params, parts).value
-        state = jnp.broadcast_to(flat_state(parts), (num_props, num_props, flat_state(parts).shape[0]))
-        pairs = jnp.concatenate([state, jnp.broadcast_to(goals[:, None], (num_props, num_props, GOAL_DIM)),
-                                 jnp.broadcast_to(goals[None], (num_props, num_props, GOAL_DIM))], -1)
+        grid = (num_props, num_props)
+        state = flat_state(parts)
+        pairs = jnp.concatenate([jnp.broadcast_to(state, (*grid, state.shape[0])),
+                                 jnp.broadcast_to(goals[:, None], (*grid, GOAL_DIM)),
+                                 jnp.broadcast_to(goals[None], (*grid, GOAL_DIM))], -1)
         pair_values = value_network.apply(params["gcvf"], pairs)
         costs = search.cost_matrix(start, pair_values)
         to_go = search.cost_to_go(task_state.spec, costs, rows, empty, omega)
         minus = jnp.full((), -1, jnp.int32)
-        return GCRLCarry(minus, jnp.int32(num_props), minus, minus, jnp.zeros(num_props, bool), to_go)
+        return GCRLCarry(minus, jnp.int32(num_props), minus, minus, jnp.zeros(num_props, bool),
+                         to_go)
 
     def replan(out, task_state, carry, last):
         spec, q = task_state.spec, task_state.q

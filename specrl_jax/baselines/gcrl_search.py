@@ -132,7 +132,8 @@ def shortest_paths(weights: jax.Array) -> jax.Array:
     dist = jnp.where(jnp.eye(n, dtype=bool), 0.0, weights)
 
     def relax(k, dist):
-        via = jax.lax.dynamic_slice_in_dim(dist, k, 1, axis=1) + jax.lax.dynamic_slice_in_dim(dist, k, 1, axis=0)
+        column = jax.lax.dynamic_slice_in_dim(dist, k, 1, axis=1)
+        via = column + jax.lax.dynamic_slice_in_dim(dist, k, 1, axis=0)
         return jnp.minimum(dist, via)
 
     return jax.lax.fori_loop(0, n, relax, dist)

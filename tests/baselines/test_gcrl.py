@@ -20,12 +20,14 @@ def _kernels(tree):
 
 
 def test_networks_have_the_original_sizes():
-    for env_id, width, head in (("LetterLTL0-v0", 1024 + 24, (256, 4)), ("PointLTL0-v0", 80 + 24, (256, 4))):
+    for env_id, width, head in (("LetterLTL0-v0", 1024 + 24, (256, 4)),
+                                ("PointLTL0-v0", 80 + 24, (256, 4))):
         world, params = specrl_jax.make(env_id)
         method = gcrl.make_method(world, params, "letter" if env_id.startswith("L") else "zone")
         obs, _ = jax.eval_shape(method.env.reset, jax.random.key(0), method.init_task_params())
         one = jax.tree.map(lambda x: jax.ShapeDtypeStruct((1, *x.shape), x.dtype), obs)
-        shapes = gcrl.param_shapes(method, jax.eval_shape(method.network.init, jax.random.key(0), one))
+        policy = jax.eval_shape(method.network.init, jax.random.key(0), one)
+        shapes = gcrl.param_shapes(method, policy)
         dense = _kernels(shapes["policy"]["params"])
         # linear features as wide as the input, shared trunk 512-1024-256, then the heads
         assert dense[:4] == [(width, width), (width, 512), (512, 1024), (1024, 256)], dense
@@ -43,7 +45,8 @@ def test_networks_have_the_original_sizes():
 
 
 def _tiny_world():
-    world, params = make_letter_world(LetterConfig(grid_size=5, letters=("a", "b"), counts=1), max_steps=6)
+    config = LetterConfig(grid_size=5, letters=("a", "b"), counts=1)
+    world, params = make_letter_world(config, max_steps=6)
     return world, world.with_map_bank(jax.random.key(0), params, num_maps=64)
 
 
@@ -109,13 +112,14 @@ def test_agent_pursues_b_and_turns_away_from_a_above_the_threshold():
 
     @jax.jit
     def act(values):
-        net = {"policy": {"logits": jnp.asarray(logits), "values": jnp.zeros(12).at[:2].set(values)},
-               "gcvf": None}
+        stub = {"logits": jnp.asarray(logits), "values": jnp.zeros(12).at[:2].set(values)}
+        net = {"policy": stub, "gcvf": None}
         carry = policy.init(net, obs, state, jax.random.key(1))
         return policy.apply(net, obs, state, carry, jax.random.key(2))
 
     (action, slot), carry = act(jnp.array([0.5, 0.7]))  # 'a' is not close: the goal's best action
-    assert int(carry.goal) == 1 and np.asarray(carry.avoid)[0] and not np.asarray(carry.avoid)[1:].any()
+    avoid = np.asarray(carry.avoid)
+    assert int(carry.goal) == 1 and avoid[0] and not avoid[1:].any()
     assert (int(action), int(slot)) == (2, -1)
     # 'a' closer than the goal and above 0.85: the goal's best move other than toward 'a'
     assert int(act(jnp.array([0.9, 0.7]))[0][0]) == 1

@@ -52,7 +52,8 @@ class _PlaneWorld:
         terminated = jnp.abs(pos[0]) > 50.0
         truncated = (time >= params.max_steps) & ~terminated
         nxt = _State(_Physics(pos), time)
-        return self._obs(pos), nxt, jnp.float32(0), terminated, truncated, {"propositions": jnp.zeros(1, bool)}
+        info = {"propositions": jnp.zeros(1, bool)}
+        return self._obs(pos), nxt, jnp.float32(0), terminated, truncated, info
 
 
 def test_direction_reward_is_speed_along_minus_five_hundredths_across():

@@ -22,7 +22,7 @@ FORMULAS = ["!a U (b & F c)", "F (a & F (b & F c))",
 
 
 def _edges(spec, costs):
-    """Path-graph edges as Python tuples: (source node, target node, cost, accepting, goal, slot)."""
+    """Path-graph edges as Python tuples: (source, target, cost, accepting, goal, slot)."""
     delta, acc = np.asarray(spec.delta), np.asarray(spec.accepting)
     eps, dead = np.asarray(spec.epsilon), np.asarray(spec.violation)
     alphabet = np.asarray(spec.alphabet)
@@ -106,19 +106,20 @@ def test_search_matches_brute_force_enumeration(formula):
         for g in range(width):
             want, want_first = _brute_force(spec, np.asarray(costs), (q, g))
             got = to_go[q * width + g]
-            assert np.isclose(got, want, rtol=1e-5, atol=1e-5) or (np.isinf(got) and np.isinf(want)), (
-                formula, q, g, got, want)
+            same = np.isclose(got, want, rtol=1e-5, atol=1e-5)
+            assert same or (np.isinf(got) and np.isinf(want)), (formula, q, g, got, want)
             step = first(spec, jnp.int32(q), jnp.int32(g), costs[len(PROPS)], jnp.asarray(to_go),
                          jnp.asarray(rows), empty)
-            if g == len(PROPS) and np.isfinite(want):  # from a fresh node the first edge costs row P
+            if g == len(PROPS) and np.isfinite(want):  # a fresh node: the first edge costs row P
                 assert np.isclose(float(step.cost), want, rtol=1e-5, atol=1e-5)
-                assert (int(step.goal), int(step.slot)) == want_first, (formula, q, step, want_first)
+                assert (int(step.goal), int(step.slot)) == want_first, (formula, q, step)
                 checked += 1
     assert checked >= 1
 
 
 def test_cost_matrix_reads_values_as_one_minus_v_clipped_with_free_stays():
-    costs = np.asarray(search.cost_matrix(jnp.array([0.25, 1.5]), jnp.array([[0.9, 0.6], [0.1, 0.3]])))
+    pair = jnp.array([[0.9, 0.6], [0.1, 0.3]])
+    costs = np.asarray(search.cost_matrix(jnp.array([0.25, 1.5]), pair))
     hop = search.HOP
     np.testing.assert_allclose(costs, [[hop, 0.4 + hop], [0.9 + hop, hop], [0.75 + hop, hop]],
                                rtol=1e-6)
@@ -130,6 +131,7 @@ def test_unreachable_acceptance_gives_no_plan():
     rows, empty = search.goal_symbols(alphabet)
     rows = np.array([-1, rows[1]], np.int32)  # 'a' can never be produced alone
     costs = search.cost_matrix(jnp.array([0.5, 0.5]), jnp.full((2, 2), 0.5))
-    to_go = search.cost_to_go(spec, costs, jnp.asarray(rows), empty)
-    step = search.first_step(spec, spec.init, jnp.int32(2), costs[2], to_go, jnp.asarray(rows), empty)
+    to_go = jax.jit(search.cost_to_go, static_argnums=3)(spec, costs, jnp.asarray(rows), empty)
+    step = jax.jit(search.first_step, static_argnums=6)(spec, spec.init, jnp.int32(2), costs[2],
+                                                        to_go, jnp.asarray(rows), empty)
     assert np.isinf(float(step.cost)) and int(step.goal) == -1 and int(step.slot) == -1
