@@ -1,8 +1,13 @@
 """Where one Car / Ant env step spends its time: the MJX stages, timed one by one.
 
-For each robot the script builds the level-0 world, resets `--batch` worlds and runs `--warm`
-random-action env steps (so contacts are live), then times, on whatever device JAX runs on:
+For each robot the script builds the level-0 world, puts `--batch` worlds at the robot's start
+pose (built on the host), runs `--warm` random-action env steps (so contacts are live), then
+times, on whatever device JAX runs on:
 
+  env step     `ZoneEnv.step_env` (physics, LiDAR, labels, termination), no auto-reset
+  env own code the LiDAR, sensor read-out, labels and termination alone
+  reset        (with `--reset`) `ZoneEnv.reset`, an exact layout and a forward pass; the batched
+               auto-reset runs it for B/32 worlds a step
   kinematics   smooth.kinematics, com_pos, crb, factor_m (the mass matrix and its factor)
   collision    collision_driver.collision (C's capsule frame for the Ant, as `Physics` traces)
   constraint   constraint.make_constraint (contact and limit rows: efc_J, efc_D, efc_aref, ...)
@@ -12,21 +17,20 @@ random-action env steps (so contacts are live), then times, on whatever device J
   integration  the integrator's update after the forward pass (Euler: damping-implicit velocity
                and position update; RK4: the final combination, its stage evaluations are
                forward passes)
-  forward      mjx.forward whole, as the substeps run it (the stages above but integration, and
-               the sensors only with `substep_sensors`, as fused by XLA)
-  env step     `ZoneEnv.step_env` (physics, LiDAR, labels, termination); env own code: the
-               LiDAR, sensors read-out, labels and termination alone; reset: `ZoneEnv.reset`
-               (an exact layout and a forward pass), which auto-reset runs for B/32 worlds a step
 
-Each stage is a `vmap` over the batch inside a `lax.fori_loop` of `--loops` applications (its
-output fed back as its input, so XLA cannot hoist it), timed as the best of `--repeats` calls after
-a warm-up; "ms" is per application. "x per env step" is how often the env step runs the stage
-(Euler: 11 forward passes; RK4: 4 per substep + 1), and "share" that count times the stage's time
-over the env step's (sensors: once, in the forward pass after the last substep, unless the
-solver's `substep_sensors`). Writes a JSON to `--out` after each robot.
+The MJX stages are timed as cumulative chains (kinematics; kinematics + collision; ...), each a
+`vmap` over the batch inside a `lax.fori_loop` of `--loops` applications whose output is fed back
+and whose own inputs (qpos, qvel, ctrl, qacc_warmstart) get a loop-variant zero added, so that
+XLA cannot hoist work out of the loop; a stage's time is its chain's minus the previous chain's
+(best of `--repeats` calls after a warm-up, per application; small stages can come out near 0 or
+slightly negative in the noise). "x per env step" is how often the env step runs the stage
+(Euler: 11 forward passes; RK4: 4 per substep + 1; sensors: once, unless the solver's
+`substep_sensors`), and "share" that count times the stage's time over the env step's. Writes a
+JSON to `--out` after each robot.
 
 Usage: python benchmarks/zone_profile.py --robots Car Ant --batch 16384 --out /tmp/profile.json
-       [--solver KEY=VALUE ...] (overrides of the robot's default `Solver`, e.g. contacts=tips)
+       [--solver KEY=VALUE ...] (overrides of the robot's default `Solver`, e.g.
+       max_contacts=0 substep_sensors=True for the settings before issue 18) [--reset]
 """
 
 from __future__ import annotations
@@ -45,10 +49,12 @@ import jax
 import jax.numpy as jnp
 import jaxlib
 import mujoco
+import numpy as np
 
 from specrl_jax.envs.zone import contact_frame, make_zone
 from specrl_jax.envs.zone.config import DEFAULT_SOLVERS, level_config
-from specrl_jax.envs.zone.mjx_import import mjx
+from specrl_jax.envs.zone.env import ZoneState
+from specrl_jax.envs.zone.physics import PhysicsState
 
 # isort: split
 from mujoco.mjx._src import collision_driver, constraint, sensor, smooth, solver
@@ -80,16 +86,16 @@ def _integration(m, d):
     return mjx_forward._advance(m, d, d.act_dot, d.qacc, d.qvel)
 
 
-STAGES: dict[str, Callable] = {
-    "kinematics": _kinematics,
-    "collision": collision_driver.collision,
-    "constraint": constraint.make_constraint,
-    "smooth": _smooth,
-    "solver": solver.solve,
-    "sensors": _sensors,
-    "integration": _integration,
-    "forward": mjx.forward,
-}
+#: Cumulative prefixes of the forward pass; a stage's time is its prefix's minus the previous one.
+STAGES: tuple[tuple[str, Callable], ...] = (
+    ("kinematics", _kinematics),
+    ("collision", collision_driver.collision),
+    ("constraint", constraint.make_constraint),
+    ("smooth", _smooth),
+    ("solver", solver.solve),
+    ("sensors", _sensors),
+    ("integration", _integration),
+)
 
 
 def _best(fn: Callable, args: tuple, repeats: int) -> float:
@@ -110,25 +116,55 @@ def _compile(fn: Callable, args: tuple, scope) -> tuple[Any, float]:
     return compiled, time.perf_counter() - start
 
 
+def _start_states(env, batch: int, rng: np.random.Generator):
+    """`ZoneState`s at the robots' start poses built on the host (zero velocity; no reset to
+    compile): random positions and yaws, the Ant's joint noise, random zone centres."""
+    robot = env.config.robot
+    yaw = rng.uniform(0, 2 * np.pi, batch)
+    if robot == "Point":
+        qpos = np.stack([rng.uniform(-2, 2, batch), rng.uniform(-2, 2, batch), yaw], 1)
+    else:
+        joints = {"Car": np.tile([0.0, 0.0, 1.0, 0.0, 0.0, 0.0], (batch, 1)),
+                  "Ant": np.array([0, 1, 0, -1, 0, -1, 0, 1]) * np.pi / 2
+                  + rng.uniform(-0.1, 0.1, (batch, 8))}[robot]
+        qpos = np.concatenate([
+            rng.uniform(-2, 2, (batch, 2)), np.full((batch, 1), env.start_height),
+            np.stack([np.cos(yaw / 2), 0 * yaw, 0 * yaw, np.sin(yaw / 2)], 1), joints], 1)
+    qpos = jnp.asarray(qpos, env.physics.dtype)
+    nv, nsensor = env.mj_model.nv, env.mj_model.nsensordata
+    zeros = lambda *shape: jnp.zeros((batch, *shape), env.physics.dtype)
+    num_zones = env.zone_color.shape[0]
+    return ZoneState(
+        physics=PhysicsState(qpos=qpos, qvel=zeros(nv), qacc_warmstart=zeros(nv),
+                             agent_pos=zeros(3), agent_mat=zeros(3, 3), sensordata=zeros(nsensor)),
+        start_qpos=qpos, zone_xy=jnp.asarray(rng.uniform(-2, 2, (batch, num_zones, 2)), jnp.float32),
+        zone_direction=jnp.zeros((batch, num_zones)), zone_phase=jnp.zeros((batch, num_zones)),
+        time=jnp.zeros(batch, jnp.int32),
+    )
+
+
 def profile(robot: str, batch: int, warm: int, loops: int, repeats: int,
-            overrides: dict[str, Any]) -> dict[str, Any]:
+            overrides: dict[str, Any], with_reset: bool) -> dict[str, Any]:
     """Per-stage timings of one robot's env step (see the module docstring)."""
     solver_cfg = dataclasses.replace(DEFAULT_SOLVERS[robot], **overrides)
     env, params = make_zone(level_config(robot, 0, solver=solver_cfg))
     physics = env.physics
     scope = (contact_frame.c_contact_frame if physics.c_contact_frame
              else contextlib.nullcontext)
+    rows: dict[str, dict[str, float]] = {}
     key_reset, key_act = jax.random.split(jax.random.key(0))
-    keys = jax.random.split(key_reset, batch)
-    reset, reset_s = _compile(jax.vmap(env.reset, in_axes=(0, None)), (keys, params), scope)
-    _, state = reset(keys, params)
+    if with_reset:
+        keys = jax.random.split(key_reset, batch)
+        reset, reset_s = _compile(jax.vmap(env.reset, in_axes=(0, None)), (keys, params), scope)
+        rows["reset"] = {"ms": 1e3 * _best(reset, (keys, params), repeats),
+                         "compile_s": reset_s, "count": 1 / 32}
+    state = _start_states(env, batch, np.random.default_rng(0))
     actions = jax.random.uniform(key_act, (batch, env.robot.action_dim), minval=-1, maxval=1)
     step_keys = jax.random.split(key_act, batch)
     env_step = jax.vmap(env.step_env, in_axes=(0, 0, 0, None))
     env_step_c, env_step_s = _compile(env_step, (step_keys, state, actions, params), scope)
-    for _ in range(warm):
+    for _ in range(warm):  # from rest into contact: the Ant drops 2 cm onto its feet
         _, state, *_ = env_step_c(step_keys, state, actions, params)
-    rows: dict[str, dict[str, float]] = {}
     rows["env step"] = {"ms": 1e3 * _best(env_step_c, (step_keys, state, actions, params),
                                            repeats), "compile_s": env_step_s, "count": 1}
 
@@ -138,30 +174,40 @@ def profile(robot: str, batch: int, warm: int, loops: int, repeats: int,
     own_c, own_s = _compile(jax.vmap(own), (state,), scope)
     rows["env own code"] = {"ms": 1e3 * _best(own_c, (state,), repeats), "compile_s": own_s,
                             "count": 1}
-    rows["reset"] = {"ms": 1e3 * _best(reset, (keys, params), repeats), "compile_s": reset_s,
-                     "count": 1 / 32}
     model = physics.model
     data = jax.vmap(lambda s, a: physics._template.replace(
         qpos=s.qpos, qvel=s.qvel, qacc_warmstart=s.qacc_warmstart,
         ctrl=jnp.asarray(a, physics.dtype)))(state.physics, actions)
-    forward_c, _ = _compile(jax.vmap(lambda d: mjx.forward(model, d)), (data,), scope)
-    data = forward_c(data)
     rk4 = model.opt.integrator == IntegratorType.RK4
     forwards = 10 * (4 if rk4 else 1) + 1
-    # the substeps run `substep_model` (sensors off unless `substep_sensors`), the last forward
-    # pass `model`; "forward" is timed as the substeps run it
     counts = {"integration": 10, "sensors": forwards if solver_cfg.substep_sensors else 1}
-    for name, stage in STAGES.items():
-        stage_model = physics.substep_model if name == "forward" else model
+    previous = 0.0
+    for k, (name, _) in enumerate(STAGES):
+        chain = [stage for _, stage in STAGES[:k + 1]]
 
-        def looped(d, stage=stage, stage_model=stage_model):
-            return jax.lax.fori_loop(0, loops, lambda _, x: jax.vmap(
-                lambda y: stage(stage_model, y))(x), d)
+        def looped(d, chain=chain):
+            def body(i, x):
+                # the forward pass's own inputs plus a loop-variant zero, so that XLA cannot
+                # hoist the chain out of the loop (its output is fed back as well)
+                zero = i.astype(physics.dtype) * 0.0
+                x = x.replace(qpos=x.qpos + zero, qvel=x.qvel + zero, ctrl=x.ctrl + zero,
+                              qacc_warmstart=x.qacc_warmstart + zero)
+
+                def one(y):
+                    for stage in chain:
+                        y = stage(model, y)
+                    return y
+
+                return jax.vmap(one)(x)
+
+            return jax.lax.fori_loop(0, loops, body, d)
 
         compiled, compile_s = _compile(looped, (data,), scope)
-        rows[name] = {"ms": 1e3 * _best(compiled, (data,), repeats) / loops,
-                      "compile_s": compile_s, "count": counts.get(name, forwards)}
-        print(f"  {robot} {name}: {rows[name]['ms']:.3f} ms", flush=True)
+        ms = 1e3 * _best(compiled, (data,), repeats) / loops
+        rows[name] = {"ms": ms - previous, "compile_s": compile_s,
+                      "count": counts.get(name, forwards)}
+        previous = ms
+        print(f"  {robot} {name}: {rows[name]['ms']:.3f} ms (chain {ms:.3f} ms)", flush=True)
     total = rows["env step"]["ms"]
     for row in rows.values():
         row["share"] = row["ms"] * row["count"] / total
@@ -197,6 +243,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--solver", nargs="*", default=[], metavar="KEY=VALUE",
                         help="Solver field overrides on top of the robot's default")
+    parser.add_argument("--reset", action="store_true",
+                        help="also time (and compile) the vmapped exact reset")
     parser.add_argument("--out", required=True, help="JSON output path")
     args = parser.parse_args()
     overrides = _parse_overrides(args.solver)
@@ -209,7 +257,8 @@ def main() -> None:
     }
     for robot in args.robots:
         start = time.perf_counter()
-        r = profile(robot, args.batch, args.warm, args.loops, args.repeats, overrides)
+        r = profile(robot, args.batch, args.warm, args.loops, args.repeats, overrides,
+                    args.reset)
         r["wall_s"] = time.perf_counter() - start
         meta["results"].append(r)
         with open(args.out, "w") as f:  # after each robot, so a timeout keeps what was measured
