@@ -16,7 +16,9 @@ acceptance, epsilon edges of limit-deterministic automata):
 - goal edge `(q, g) -p-> (delta[q, {p}], p)` for every proposition p whose single-proposition
   assignment is in the alphabet, cost `goal_cost[g, p]`; the empty assignment and epsilon edges
   keep the last goal and cost `HOP` (the world produces the empty label by itself);
-- edges into violation states are absent.
+- edges into violation states are absent, and so is a goal edge to another proposition from a
+  state where the empty label is a violation (the way there crosses empty cells): once in such
+  a state (e.g. after the jump of `F G a`) the agent can only stay on the proposition it is on.
 
 Every edge costs at least `HOP`, so every cycle costs more than 0 and, among plans of equal
 value, the one of fewer steps wins (the original's Dijkstra kept the first found). All-pairs
@@ -70,14 +72,16 @@ def cost_matrix(start_values: jax.Array, pair_values: jax.Array) -> jax.Array:
 class Edges(NamedTuple):
     """The path graph's edges of one spec, grouped by kind (see the module docstring).
 
-    Goal edges `[S, P]` (the same for every last goal g): `goal_next` the target state,
-    `goal_ok` the edge exists, `goal_acc` it is accepting. Empty-label edges `[S]`:
+    Goal edges `[S, P]`: `goal_next` the target state, `goal_ok` the edge exists when the
+    last goal is p itself, `goal_acc` it is accepting; `travel_ok` bool[S]: the empty label is
+    safe in the state, so goal edges to other propositions exist too. Empty-label edges `[S]`:
     `empty_next`, `empty_ok`, `empty_acc`. Epsilon edges `[S, E]`: `eps_next`, `eps_ok`.
     """
 
     goal_next: jax.Array
     goal_ok: jax.Array
     goal_acc: jax.Array
+    travel_ok: jax.Array
     empty_next: jax.Array
     empty_ok: jax.Array
     empty_acc: jax.Array
@@ -97,9 +101,18 @@ def edges(spec, goal_syms: jax.Array, empty_sym: int) -> Edges:
     empty_next = spec.delta[:, e]
     empty_ok = live & live[empty_next] & (empty_sym >= 0)
     empty_acc = empty_ok & spec.accepting[:, e]
+    travel_ok = (empty_sym < 0) | live[empty_next]
     eps_next = jnp.maximum(spec.epsilon, 0)
     eps_ok = (spec.epsilon >= 0) & live[:, None] & live[eps_next]
-    return Edges(goal_next, goal_ok, goal_acc, empty_next, empty_ok, empty_acc, eps_next, eps_ok)
+    return Edges(goal_next, goal_ok, goal_acc, travel_ok, empty_next, empty_ok, empty_acc,
+                 eps_next, eps_ok)
+
+
+def _goal_mask(graph: Edges) -> jax.Array:
+    """bool[S, P + 1, P]: goal edge (q, g) -p-> exists (`goal_ok`, and `travel_ok` or g == p)."""
+    num_props = graph.goal_ok.shape[1]
+    stay = jnp.eye(num_props + 1, num_props, dtype=bool)[None]
+    return graph.goal_ok[:, None, :] & (graph.travel_ok[:, None, None] | stay)
 
 
 def _weights(graph: Edges, goal_cost: jax.Array) -> jax.Array:
@@ -112,7 +125,7 @@ def _weights(graph: Edges, goal_cost: jax.Array) -> jax.Array:
     p = jnp.arange(num_props)[None, None, :]
     src = jnp.broadcast_to(q * width + g, (num_states, width, num_props))
     dst = jnp.broadcast_to(graph.goal_next[:, None, :] * width + p, src.shape)
-    cost = jnp.where(graph.goal_ok[:, None, :], goal_cost[None], jnp.inf)
+    cost = jnp.where(_goal_mask(graph), goal_cost[None], jnp.inf)
     weights = jnp.full((n, n), jnp.inf).at[src.ravel(), dst.ravel()].min(cost.ravel())
     g1 = jnp.arange(width)[None, :]
     src = jnp.arange(num_states)[:, None] * width + g1  # [S, G]
@@ -159,7 +172,7 @@ def cost_to_go(spec, goal_cost: jax.Array, goal_syms: jax.Array, empty_sym: int,
     x = jnp.broadcast_to(x, (num_states, width, num_props))
     y = jnp.broadcast_to(graph.goal_next[:, None, :] * width + jnp.arange(num_props)[None, None, :],
                          x.shape)
-    c = jnp.where(graph.goal_acc[:, None, :], goal_cost[None], jnp.inf)
+    c = jnp.where(graph.goal_acc[:, None, :] & _goal_mask(graph), goal_cost[None], jnp.inf)
     close = c * (1 + omega) + omega * dist[y, x]  # [S, G, P]
     # accepting empty-label edges x = (q, g) -> y = (empty_next[q], g)
     xe = jnp.arange(num_states)[:, None] * width + jnp.arange(width)[None, :]
@@ -198,7 +211,8 @@ def first_step(spec, q: jax.Array, last: jax.Array, first_cost: jax.Array, to_go
     graph = edges(spec, goal_syms, empty_sym)
     width = graph.goal_next.shape[1] + 1
     p = jnp.arange(width - 1)
-    goal = jnp.where(graph.goal_ok[q], first_cost + to_go[graph.goal_next[q] * width + p], jnp.inf)
+    ok = graph.goal_ok[q] & (graph.travel_ok[q] | (p == last))
+    goal = jnp.where(ok, first_cost + to_go[graph.goal_next[q] * width + p], jnp.inf)
     empty = jnp.where(graph.empty_ok[q], HOP + to_go[graph.empty_next[q] * width + last], jnp.inf)
     eps = jnp.where(graph.eps_ok[q], HOP + to_go[graph.eps_next[q] * width + last], jnp.inf)
     best_goal, best_eps = jnp.argmin(goal), jnp.argmin(eps)

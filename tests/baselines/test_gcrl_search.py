@@ -1,7 +1,8 @@
 """GCRL-LTL's value-weighted subgoal search against a brute-force enumeration of plans.
 
 The brute force builds the path graph from the automaton tables with plain Python loops and
-enumerates every simple prefix and every simple loop: co-safe specs, the cheapest path into a
+enumerates every simple prefix and every simple loop (a goal edge to another proposition only
+where the empty label is safe): co-safe specs, the cheapest path into a
 success state; others, `prefix + c + OMEGA * (c + back)` over the accepting edges `x -c-> y`.
 The search must find the same cost from every start state and the same first step.
 """
@@ -38,7 +39,8 @@ def _edges(spec, costs):
                 continue
             for p, row in rows.items():
                 t = int(delta[q, row])
-                if not dead[t]:
+                travel = not dead[delta[q, empty]] or g == p  # crossing empty cells is safe
+                if not dead[t] and travel:
                     edges.append(((t, p), float(costs[g, p]), bool(acc[q, row]), p, -1))
             t = int(delta[q, empty])
             if not dead[t]:
@@ -135,3 +137,20 @@ def test_unreachable_acceptance_gives_no_plan():
     step = jax.jit(search.first_step, static_argnums=6)(spec, spec.init, jnp.int32(2), costs[2],
                                                         to_go, jnp.asarray(rows), empty)
     assert np.isinf(float(step.cost)) and int(step.goal) == -1 and int(step.slot) == -1
+
+
+def test_persistence_jumps_only_while_standing_on_the_proposition():
+    """F G a: after the epsilon jump the empty label is a violation, so the plan reaches 'a'
+    first and jumps only from it (jumping at once would be as cheap in a graph that ignored the
+    empty cells crossed on the way)."""
+    alphabet = automata.zero_or_one(len(PROPS))
+    spec = automata.compile_spec("F G a", PROPS, alphabet=alphabet)
+    rows, empty = (jnp.asarray(x) if i == 0 else x for i, x in
+                   enumerate(search.goal_symbols(alphabet)))
+    costs = search.cost_matrix(jnp.array([0.5, 0.9, 0.9]), jnp.full((3, 3), 0.5))
+    to_go = jax.jit(search.cost_to_go, static_argnums=3)(spec, costs, rows, empty)
+    first = jax.jit(search.first_step, static_argnums=6)
+    fresh = first(spec, spec.init, jnp.int32(3), costs[3], to_go, rows, empty)
+    assert (int(fresh.goal), int(fresh.slot)) == (0, -1)
+    on_a = first(spec, spec.init, jnp.int32(0), costs[3], to_go, rows, empty)
+    assert (int(on_a.goal), int(on_a.slot)) == (-1, 0)
