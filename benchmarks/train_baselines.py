@@ -1,6 +1,7 @@
-"""Reproduce GenZ-LTL and DeepLTL on any single-agent world: train (seeds side by side) through
-the task loop, evaluate on the paper's suites, write the results JSON, Markdown tables, curves
-and timings.
+"""Reproduce the baselines (GenZ-LTL, DeepLTL, LTL2Action, GCRL-LTL) on any single-agent world.
+
+Train (seeds side by side) through the task loop, evaluate on the paper's suites, write the
+results JSON, Markdown tables, curves and timings.
 
 Example (GPU, the full protocol):
     python benchmarks/train_baselines.py --env LetterLTL0-v0 --methods genz deepltl --seeds 5 \
@@ -80,7 +81,8 @@ def main() -> None:
             start = time.perf_counter()
             results += experiment.evaluate(method, args.env, params, suites, args.episodes)
             if args.stochastic_too:
-                other = method == "genz"  # GenZ-LTL's reference mode is deterministic, DeepLTL's sampled
+                # GenZ-LTL's and GCRL-LTL's reference mode is deterministic, DeepLTL's sampled
+                other = method in ("genz", "gcrl")
                 label = experiment.METHOD_NAMES[method] + (" (sampled)" if other else " (mode)")
                 results += experiment.evaluate(method, args.env, params, suites[:2],
                                                args.episodes, deterministic=not other, label=label)
