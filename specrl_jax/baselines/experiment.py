@@ -21,13 +21,13 @@ import jax.numpy as jnp
 import numpy as np
 from flax import serialization
 
-from specrl_jax.baselines import deepltl, gcrl, genz, ltl2action, runs
+from specrl_jax.baselines import deepltl, gcrl, genz, ltl2action, rad, runs
 from specrl_jax.baselines.ppo import env_mesh, make_train
 from specrl_jax.envs.registry import make
 
-METHODS = {"genz": genz, "deepltl": deepltl, "ltl2action": ltl2action, "gcrl": gcrl}
+METHODS = {"genz": genz, "deepltl": deepltl, "ltl2action": ltl2action, "gcrl": gcrl, "rad": rad}
 METHOD_NAMES = {"genz": "GenZ-LTL", "deepltl": "DeepLTL", "ltl2action": "LTL2Action",
-                "gcrl": "GCRL-LTL"}
+                "gcrl": "GCRL-LTL", "rad": "RAD-Embeddings"}
 LETTER_SUITES = ("letter/finite/ind", "letter/finite/ood", "letter/infinite/rsp", "letter/infinite/rec")
 SUCCESS_LEVELS = (0.5, 0.8, 0.9, 0.95, 0.98)
 
@@ -151,6 +151,8 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
     Returns `SuiteResult`s with one row per trained seed."""
     from specrl_jax.eval.suites import evaluate_suites
 
+    if hasattr(method_module(method), "usable_suites"):  # RAD: co-safe suites only
+        suites = method_module(method).usable_suites(suites, log)
     world, env_params = make(env_id)
     world_family = family(env_id)
     method_obj = method_module(method).make_method(world, env_params, world_family)
