@@ -19,6 +19,7 @@ from pathlib import Path
 import jax
 
 from specrl_jax.baselines import experiment
+from specrl_jax.cli import env_option
 from specrl_jax.eval import report
 
 COMPLEXITY = tuple(
@@ -51,8 +52,11 @@ def main() -> None:
     parser.add_argument("--no-threshold-too", action="store_true",
                         help="DeepLTL: also evaluate without the 0.4 value-threshold avoid augmentation")
     parser.add_argument("--suites", nargs="+", default=None, help="default: the world's paper suites")
+    parser.add_argument("--env-option", type=env_option, action="append", default=[], metavar="KEY=VALUE",
+                        help="an override of the world passed to make(), e.g. image_size=64 (repeatable)")
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
+    env_options = dict(args.env_option)
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -63,32 +67,36 @@ def main() -> None:
                        ("minibatches", "num_minibatches"), ("epochs", "update_epochs")):
         if getattr(args, flag) is not None:
             overrides[name] = getattr(args, flag)
-    suites = tuple(args.suites or experiment.SUITES[world_family]) + (COMPLEXITY if args.complexity else ())
+    suites = tuple(args.suites or experiment.suites_for(args.env)) + (COMPLEXITY if args.complexity else ())
     results, summaries = [], {}
     loads = dict(item.split("=", 1) for item in args.load)
     for method in args.methods:
         if method in loads:
-            params = experiment.load_params(method, args.env, loads[method], args.seeds)
+            params = experiment.load_params(method, args.env, loads[method], args.seeds,
+                                            env_options=env_options)
             summary = summaries[method] = {"loaded_from": loads[method]}
         else:
             params, summary = experiment.train(
                 method, args.env, out / method, overrides, args.seeds, seed=args.seed, map_bank=args.map_bank,
-                chunk_updates=args.chunk, max_wall_s=args.max_wall,
+                chunk_updates=args.chunk, max_wall_s=args.max_wall, env_options=env_options,
             )
             summaries[method] = summary
             print(json.dumps(summary["time_to_success"]), flush=True)
         if not args.no_eval:
             start = time.perf_counter()
-            results += experiment.evaluate(method, args.env, params, suites, args.episodes)
+            results += experiment.evaluate(method, args.env, params, suites, args.episodes,
+                                           env_options=env_options)
             if args.stochastic_too:
                 # GenZ-LTL's and GCRL-LTL's reference mode is deterministic, DeepLTL's sampled
                 other = method in ("genz", "gcrl")
                 label = experiment.METHOD_NAMES[method] + (" (sampled)" if other else " (mode)")
-                results += experiment.evaluate(method, args.env, params, suites[:2],
-                                               args.episodes, deterministic=not other, label=label)
+                results += experiment.evaluate(method, args.env, params, suites[:2], args.episodes,
+                                               deterministic=not other, label=label,
+                                               env_options=env_options)
             if args.no_threshold_too and method == "deepltl":
                 results += experiment.evaluate(method, args.env, params, suites, args.episodes,
-                                               label="DeepLTL (no threshold)", value_threshold=None)
+                                               label="DeepLTL (no threshold)", value_threshold=None,
+                                               env_options=env_options)
             summary["eval_wall_s"] = time.perf_counter() - start
     config = {"args": vars(args), "device": str(device), "training": summaries}
     (out / "training.json").write_text(json.dumps(config, indent=1, default=str))

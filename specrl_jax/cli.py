@@ -15,6 +15,7 @@ A subcommand is one function taking the parsed arguments, registered with its op
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
 import os
 import sys
@@ -35,6 +36,18 @@ def positive_int(text: str) -> int:
 def nonnegative_int(text: str) -> int:
     """argparse type: an integer >= 0."""
     return _int_at_least(text, 0)
+
+
+def env_option(text: str) -> tuple[str, Any]:
+    """argparse type: `KEY=VALUE`, the value read as a Python literal (int, float, bool, tuple)
+    or else kept as a string."""
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE (e.g. image_size=64), got {text!r}")
+    try:
+        return key, ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+        return key, value
 
 
 def _int_at_least(text: str, low: int) -> int:
@@ -234,6 +247,8 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
         help="LetterWorld: maps in the fast-reset bank (0: exact resets)"),
     arg("--out", default=None, help="run directory (default runs/<method>); resumes if present"),
     arg("--eval-episodes", type=nonnegative_int, default=0, help="then evaluate on the world's paper suites"),
+    arg("--env-option", type=env_option, action="append", default=[], metavar="KEY=VALUE",
+        help="an override of the world passed to make(), e.g. image_size=64 (repeatable)"),
 )
 def train_command(args: argparse.Namespace) -> int:
     enable_compilation_cache()
@@ -249,13 +264,16 @@ def train_command(args: argparse.Namespace) -> int:
     overrides.update({k: v for k, v in (("num_envs", args.num_envs), ("num_steps", args.num_steps))
                       if v is not None})
     out = Path(args.out or f"runs/{args.method}")
+    env_options = dict(args.env_option)
     params, summary = experiment.train(args.method, args.env, out, overrides, args.seeds, args.seed,
-                                       map_bank=args.map_bank or None, restart=args.restart)
+                                       map_bank=args.map_bank or None, restart=args.restart,
+                                       env_options=env_options)
     print(f"trained {args.seeds} x {summary['env_steps_per_seed']:,} steps, "
           f"{summary['env_steps_per_s']:,.0f} env-steps/s; run directory {out}")
     if args.eval_episodes > 0:
         results = experiment.evaluate(args.method, args.env, params,
-                                      experiment.suites_for(args.env), args.eval_episodes)
+                                      experiment.suites_for(args.env), args.eval_episodes,
+                                      env_options=env_options)
         report.write_json(out / "eval.json", results, {"train": summary})
         print(report.markdown_tables(results))
     print(f"wrote {out}/: config.json, metrics.jsonl, checkpoint.msgpack, params.msgpack, "

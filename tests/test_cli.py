@@ -56,3 +56,17 @@ def test_oracle_needs_letter_world():
 
     with pytest.raises(ValueError, match="needs LetterWorld"):
         cli.make_policy("oracle", Arena())
+
+
+def test_env_options_parse_as_literals_and_reach_the_world():
+    import argparse
+
+    from specrl_jax.baselines import experiment
+
+    assert cli.env_option("image_size=64") == ("image_size", 64)
+    assert cli.env_option("partial=True") == ("partial", True)
+    assert cli.env_option("physics=warp") == ("physics", "warp")
+    with pytest.raises(argparse.ArgumentTypeError, match="KEY=VALUE"):
+        cli.env_option("image_size")
+    _, params, method, _ = experiment.build("genz", "LetterLTL0-v0", {}, None, None, {"max_steps": 40})
+    assert int(params.max_steps) == 40 and int(method.env.params.max_steps) == 40

@@ -38,7 +38,12 @@ SUITES = {
     "letter": LETTER_SUITES,
     "zone": ("zone/finite/ind", "zone/finite/ood", "zone/infinite/rsp", "zone/infinite/rec",
              "zone/infinite/per"),
+    # the grippers-only arm's (mode 0); `suites_for` gives mode 1 its grippers+arm suites
+    "arm": ("arm_grippers/finite/ind", "arm_grippers/finite/ood", "arm_grippers/infinite/rsp",
+            "arm_grippers/infinite/rec", "arm_grippers/infinite/per"),
 }
+#: the paper's arm suites by observation mode (the env ID's digit: PandaLTLReach0... / 1...)
+ARM_SUITES = {0: SUITES["arm"], 1: ("arm_grippers_arm/finite/ind", "arm_grippers_arm/finite/ood")}
 
 
 def method_module(name: str):
@@ -58,12 +63,22 @@ def family(env_id: str) -> str:
     return found[0]
 
 
-def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int | None, key: jax.Array):
-    """(world, train params, method object, PPOConfig) for `method` on `env_id`; `map_bank`
-    (LetterWorld) draws training resets from a bank of that many exactly sampled maps."""
+def suites_for(env_id: str) -> tuple[str, ...]:
+    """The paper's evaluation suites of a single-agent env ID (the arm's depend on its mode)."""
+    world_family = family(env_id)
+    if world_family == "arm":
+        return ARM_SUITES[int(env_id[len("PandaLTLReach")])]
+    return SUITES[world_family]
+
+
+def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int | None, key: jax.Array,
+          env_options: dict[str, Any] | None = None):
+    """(world, train params, method object, PPOConfig) for `method` on `env_id` (built with
+    `make(env_id, **env_options)`); `map_bank` (LetterWorld) draws training resets from a bank of
+    that many exactly sampled maps."""
     module = method_module(method)
     world_family = family(env_id)
-    world, params = make(env_id)
+    world, params = make(env_id, **(env_options or {}))
     if map_bank and world_family == "letter":
         # wait for the bank here: dispatched asynchronously, it would finish inside training
         params = jax.block_until_ready(world.with_map_bank(key, params, num_maps=map_bank))
@@ -74,9 +89,10 @@ def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int
 def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str, Any], num_seeds: int = 1,
           seed: int = 0, map_bank: int | None = 65536, chunk_updates: int = 10,
           log: Callable[[str], None] = print, max_wall_s: float | None = None,
-          restart: bool = False, devices: Sequence[Any] | None = None
-          ) -> tuple[Any, dict[str, Any]]:
+          restart: bool = False, devices: Sequence[Any] | None = None,
+          env_options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
     """Train `num_seeds` runs; returns `(params with a leading seed axis, training summary)`.
+    `env_options` are `make`'s overrides of the world (e.g. `{"image_size": 64}`).
     `restart` discards a run directory's earlier run (else it is resumed if its settings match).
     The env batch is sharded over `devices` (default: every local device; `num_envs` must
     divide by their count), parameters replicated; the result does not depend on the count
@@ -85,7 +101,8 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     start = time.perf_counter()
     if map_bank and family(env_id) == "letter":
         log(f"building a bank of {map_bank:,} exactly sampled maps for training resets ...")
-    _world, _params, method_obj, config = build(method, env_id, ppo_overrides, map_bank, key_bank)
+    _world, _params, method_obj, config = build(method, env_id, ppo_overrides, map_bank, key_bank,
+                                                env_options)
     prepare = getattr(method_module(method), "prepare_training", None)
     if prepare is not None:  # a first phase before PPO (GCRL-LTL's direction primitives)
         method_obj = prepare(method_obj, key_train, config, log)
@@ -96,7 +113,8 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     start = time.perf_counter()
     runner = runs.train_in_run_dir(
         trainer, key_train, run_dir, chunk_updates, num_seeds,
-        extra_config={"method": method, "env": env_id, "map_bank": map_bank, "seed": seed},
+        extra_config={"method": method, "env": env_id, "map_bank": map_bank, "seed": seed,
+                      **({"env_options": dict(env_options)} if env_options else {})},
         summarise=method_module(method).summarise, log=log, max_wall_s=max_wall_s, restart=restart,
     )
     wall = time.perf_counter() - start
@@ -145,7 +163,8 @@ def make_policy(method: str, world: Any, method_obj: Any, deterministic: bool | 
 
 def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episodes: int,
              log: Callable[[str], None] = print, deterministic: bool | None = None,
-             label: str | None = None, horizon: int | None = None, **policy_options: Any) -> list:
+             label: str | None = None, horizon: int | None = None,
+             env_options: dict[str, Any] | None = None, **policy_options: Any) -> list:
     """Evaluate every trained seed (leading axis of `params`, seed i + 1 for entry i) on `suites`
     (`eval.suites.evaluate_suites`: infinite suites over 10 finite horizons unless `horizon`).
     Returns `SuiteResult`s with one row per trained seed."""
@@ -153,7 +172,7 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
 
     if hasattr(method_module(method), "usable_suites"):  # RAD: co-safe suites only
         suites = method_module(method).usable_suites(suites, log)
-    world, env_params = make(env_id)
+    world, env_params = make(env_id, **(env_options or {}))
     world_family = family(env_id)
     method_obj = method_module(method).make_method(world, env_params, world_family)
     if "suites" in inspect.signature(method_module(method).make_policy).parameters:
@@ -167,10 +186,11 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
     )
 
 
-def load_params(method: str, env_id: str, path: str | Path, num_seeds: int) -> Any:
+def load_params(method: str, env_id: str, path: str | Path, num_seeds: int,
+                env_options: dict[str, Any] | None = None) -> Any:
     """Read `params.msgpack` written by `train` (leading seed axis), or one seed's parameters
     without that axis (`benchmarks/results/*_params_seed1.msgpack`), returned with it."""
-    world, env_params = make(env_id)
+    world, env_params = make(env_id, **(env_options or {}))
     method_obj = method_module(method).make_method(world, env_params, family(env_id))
     # shapes only: running the env's reset and the network's init eagerly takes seconds on a CPU
     obs, _ = jax.eval_shape(method_obj.env.reset, jax.random.key(0), method_obj.init_task_params())
