@@ -2,12 +2,16 @@
 tracking gains under uniform random actions at a large batch (the reference's measurement).
 
     python benchmarks/arm_checks.py --batch 4096 --steps 1000 --out arm_checks.json
+
+Each part prints a line when it starts and as it progresses, and the JSON file is rewritten after
+every part, so a run cut short by a time limit still leaves what it measured.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 
 import jax
@@ -21,10 +25,18 @@ from specrl_jax.envs.wrappers import batch as batch_env
 REFERENCE_GAINS = (0.61, 0.50, 0.82, 0.82, 0.86, 0.877, 0.878)
 
 
-def saturated_rollout(env_id: str, num_envs: int, num_steps: int, bank: int) -> dict:
-    """Auto-resetting rollout with actions of +-1 in every joint; reports NaN and bounds."""
+def log(message: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {message}", flush=True)
+
+
+def saturated_rollout(env_id: str, num_envs: int, num_steps: int, bank: int,
+                      chunk: int = 100) -> dict:
+    """Auto-resetting rollout with actions of +-1 in every joint; reports NaN and bounds.
+    Runs `chunk` steps per compiled call and reports after each."""
+    start = time.perf_counter()
     env, params = specrl_jax.make(env_id)
     params = env.with_map_bank(jax.random.key(1), params, bank)
+    log(f"{env_id}: bank of {bank} layouts in {time.perf_counter() - start:.1f} s")
     batched = batch_env(env, num_envs)
     _, state = jax.jit(batched.reset)(jax.random.key(0), params)
 
@@ -36,10 +48,15 @@ def saturated_rollout(env_id: str, num_envs: int, num_steps: int, bank: int) -> 
         finite = jnp.all(jnp.isfinite(obs["ego"])) & jnp.all(jnp.isfinite(obs["ap"]))
         return (state, bad | ~finite, labels + jnp.sum(info["propositions"], 0)), None
 
-    run = jax.jit(lambda state, keys: jax.lax.scan(
-        body, (state, jnp.array(False), jnp.zeros(env.num_propositions, jnp.int32)), keys)[0])
+    run = jax.jit(lambda carry, keys: jax.lax.scan(body, carry, keys)[0])
+    carry = (state, jnp.array(False), jnp.zeros(env.num_propositions, jnp.int32))
+    keys = jax.random.split(jax.random.key(2), num_steps)
     start = time.perf_counter()
-    state, bad, labels = jax.block_until_ready(run(state, jax.random.split(jax.random.key(2), num_steps)))
+    for done in range(0, num_steps, chunk):
+        carry = jax.block_until_ready(run(carry, keys[done:done + chunk]))
+        log(f"{env_id}: {min(done + chunk, num_steps)}/{num_steps} steps of {num_envs} arms, "
+            f"NaN so far {bool(carry[1])}, {time.perf_counter() - start:.1f} s incl. compile")
+    state, bad, labels = carry
     q = np.asarray(state.physics.qpos)
     return {"env": env_id, "batch": num_envs, "steps": num_steps, "any_nan": bool(bad),
             "seconds_incl_compile": time.perf_counter() - start,
@@ -85,16 +102,29 @@ def main() -> None:
     parser.add_argument("--bank-size", type=int, default=4096)
     parser.add_argument("--gain-batch", type=int, default=256)
     parser.add_argument("--gain-steps", type=int, default=400)
+    parser.add_argument("--parts", nargs="+", choices=("gains", "nan"), default=("gains", "nan"))
     parser.add_argument("--out", default="arm_checks.json")
     args = parser.parse_args()
-    results = {"device": str(jax.devices()[0].device_kind), "jax": jax.__version__}
-    results["gains"] = tracking_gains(args.gain_batch, args.gain_steps)
-    print(json.dumps(results["gains"]), flush=True)
-    for env_id in ("PandaLTLReach0Joints-v0", "PandaLTLReach1Joints-v0"):
-        results[env_id] = saturated_rollout(env_id, args.batch, args.steps, args.bank_size)
-        print(json.dumps(results[env_id]), flush=True)
-    with open(args.out, "w") as f:
-        json.dump(results, f, indent=1)
+    results = {"device": str(jax.devices()[0].device_kind), "jax": jax.__version__,
+               "command": " ".join(["python", *sys.argv])}
+
+    def save() -> None:
+        with open(args.out, "w") as f:
+            json.dump(results, f, indent=1)
+
+    if "gains" in args.parts:
+        log(f"gains: {args.gain_batch} arms x {args.gain_steps} random actions")
+        start = time.perf_counter()
+        results["gains"] = tracking_gains(args.gain_batch, args.gain_steps)
+        results["gains"]["seconds_incl_compile"] = time.perf_counter() - start
+        log(json.dumps(results["gains"]))
+        save()
+    if "nan" in args.parts:
+        for env_id in ("PandaLTLReach0Joints-v0", "PandaLTLReach1Joints-v0"):
+            log(f"{env_id}: saturated rollout, {args.batch} arms x {args.steps} steps")
+            results[env_id] = saturated_rollout(env_id, args.batch, args.steps, args.bank_size)
+            log(json.dumps(results[env_id]))
+            save()
 
 
 if __name__ == "__main__":

@@ -150,7 +150,7 @@ def test_mode1_features_and_labels_match_a_numpy_reference(env):
         assert on == expected, (name, on)
         # numpy reference of the features from the env's own distances
         dist, normal = sensors.link_sphere_distances(
-            pose["link_pos"], pose["link_mat"], jnp.asarray(env._triangles), jnp.asarray(centres),
+            pose["link_pos"], pose["link_mat"], env._triangles, jnp.asarray(centres),
             jnp.full(8, 0.06))
         dist, normal = np.asarray(dist), np.asarray(normal)
         for p, prop in enumerate(env.propositions):

@@ -134,3 +134,26 @@ def test_chain_kinematics_matches_mujoco_c():
                      "geom_xmat", "site_xpos", "site_xmat"):
             ref = getattr(data, name).reshape(np.shape(getattr(ours, name))[1:])
             assert np.abs(np.asarray(getattr(ours, name)[i]) - ref).max() < 2e-5, name
+
+
+def test_pruned_contact_pairs_cannot_touch():
+    """panda.xml leaves out link 3 - table and link 4 - floor: over random joint angles within
+    the limits, link 3's contact hull stays above the table top (z = 0) and link 4's above the
+    floor (z = -0.4), with the bounds the model's comment derives."""
+    model = arm_model.load_model()
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(4)
+    lowest = {"link3": np.inf, "link4": np.inf}
+    for q in rng.uniform(model.jnt_range[:, 0], model.jnt_range[:, 1], (3000, 7)):
+        data.qpos[:] = q
+        mujoco.mj_kinematics(model, data)
+        for name in lowest:
+            g = model.geom(name)
+            adr, num = model.mesh_vertadr[g.dataid[0]], model.mesh_vertnum[g.dataid[0]]
+            verts = model.mesh_vert[adr:adr + num] @ data.geom_xmat[g.id].reshape(3, 3).T
+            lowest[name] = min(lowest[name], (verts[:, 2] + data.geom_xpos[g.id][2]).min())
+    assert lowest["link3"] > 0.0365 - 1e-6 and lowest["link4"] > -0.21 - 1e-6, lowest
+    pairs = {frozenset((model.geom(a).name, model.geom(b).name))
+             for a, b in zip(model.pair_geom1, model.pair_geom2)}
+    assert {"link3", "table"} not in pairs and {"link4", "floor"} not in pairs
+    assert {"link4", "table"} in pairs and {"link5", "floor"} in pairs and len(pairs) == 13

@@ -1,6 +1,7 @@
 """Arm worlds: the 7-DoF Panda reaching coloured spheres on a table, in MuJoCo MJX.
 
-Declares `PandaLTLReach{0,1}Joints-v0` and their `.partial` variants (mode 0 "grippers-only",
+Declares `PandaLTLReach{0,1}Joints-v0` (joint control) and `PandaLTLReach{0,1}-v0` (end-effector
+control through the original's IK), each with a `.partial` variant (mode 0 "grippers-only",
 mode 1 "grippers+arm"); `make_arm(config)` builds a custom arm world from an `ArmConfig`.
 """
 
@@ -22,19 +23,21 @@ def make_arm(config: ArmConfig, **params: Any) -> tuple[ArmEnv, ArmParams]:
     return env, dataclasses.replace(env.default_params, **params) if params else env.default_params
 
 
-def _factory(mode: int, partial: bool):
+def _factory(mode: int, partial: bool, control: str):
     config_fields = {f.name for f in dataclasses.fields(ArmConfig)}
 
     def build(**overrides: Any) -> tuple[ArmEnv, ArmParams]:
-        fixed = sorted(set(overrides) & {"mode", "partial"})
+        fixed = sorted(set(overrides) & {"mode", "partial", "control"})
         if fixed:
             raise ValueError(
-                f"{fixed} are fixed by the env ID (mode {mode}, partial {partial}); pick another "
-                "ID, or build a custom world with make_arm(ArmConfig(...))"
+                f"{fixed} are fixed by the env ID (mode {mode}, partial {partial}, control "
+                f"{control!r}); pick another ID, or build a custom world with "
+                "make_arm(ArmConfig(...))"
             )
         config_kw = {k: v for k, v in overrides.items() if k in config_fields}
         params_kw = {k: v for k, v in overrides.items() if k not in config_fields}
-        return make_arm(ArmConfig(mode=mode, partial=partial, **config_kw), **params_kw)
+        config = ArmConfig(mode=mode, partial=partial, control=control, **config_kw)
+        return make_arm(config, **params_kw)
 
     return build
 
@@ -42,11 +45,13 @@ def _factory(mode: int, partial: bool):
 def env_ids() -> dict[str, tuple[Any, str]]:
     """The Arm registry entries (read by `envs.registry`)."""
     names = {0: "grippers-only (grasp target in a region)", 1: "grippers+arm (link contact)"}
+    controls = {"Joints": ("joints", "joint control"), "": ("ee", "end-effector control")}
     return {
-        f"PandaLTLReach{mode}Joints-v0{suffix}": (
-            _factory(mode, suffix == ".partial"),
-            f"Panda arm, joint control, 8 spheres, {names[mode]}{suffix}",
+        f"PandaLTLReach{mode}{kind}-v0{suffix}": (
+            _factory(mode, suffix == ".partial", control),
+            f"Panda arm, {words}, 8 spheres, {names[mode]}{suffix}",
         )
+        for kind, (control, words) in controls.items()
         for mode in (0, 1)
         for suffix in ("", ".partial")
     }

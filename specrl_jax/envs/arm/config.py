@@ -13,6 +13,8 @@ BENCHMARK_COLORS = ("magenta", "yellow", "blue", "green")
 BOX_LOW = (-0.5, -0.3)
 BOX_HIGH = (0.2, 0.3)
 BOX_HEIGHT = 0.5
+#: action kinds: joint-target deltas (the `...Joints` IDs) or end-effector displacements
+CONTROLS = ("joints", "ee")
 
 
 @dataclass(frozen=True)
@@ -23,6 +25,8 @@ class ArmConfig:
         mode: 0 "grippers-only" (propositions `<colour>`: grasp target inside a region) or
             1 "grippers+arm" (`arm_<colour>`, `grippers_<colour>`: link contact).
         partial: linear 0.25 m distance features instead of `exp(-2 d)`.
+        control: "joints" (action float[7]: joint targets q + 0.05 a) or "ee" (action float[3]:
+            grasp-target displacement 0.05 a, metres, through PyBullet's IK; `arm/ik.py`).
         colors: region colours in placement order.
         regions_per_color: regions of each colour.
         region_radius: sphere radius, metres.
@@ -30,8 +34,12 @@ class ArmConfig:
             (its hulls), metres.
         horizon: default `params.max_steps`.
         max_tries: tries per region before a layout restart (original: 100).
-        layouts_per_round: whole candidate layouts checked per loop iteration of the exact
+        layouts_per_round: whole candidate layouts drawn per loop iteration of the exact
             sampler (a speed/memory knob only; the distribution does not depend on it).
+        exact_checks_per_round: exact hull-distance keep-out tests per round, for centres the
+            precomputed keep-out grid cannot settle (speed only; at least `num_regions`).
+        continuation_slots: candidates per round and region that may draw tries beyond the
+            first 8 (speed only; `layout.place_round`).
         max_rounds: loop iterations before the sampler gives up (returns the neutral-arm
             layout of its last candidate; `layout_ok` in the state says so).
         table_contacts: whether the arm collides with the table and floor (the original's).
@@ -39,19 +47,24 @@ class ArmConfig:
 
     mode: int = 0
     partial: bool = False
+    control: str = "joints"
     colors: tuple[str, ...] = BENCHMARK_COLORS
     regions_per_color: int = 2
     region_radius: float = 0.06
     keepout: float = 0.08
     horizon: int = 200
     max_tries: int = 100
-    layouts_per_round: int = 64
+    layouts_per_round: int = 512
+    exact_checks_per_round: int = 16
+    continuation_slots: int = 8
     max_rounds: int = 400
     table_contacts: bool = True
 
     def __post_init__(self) -> None:
         if self.mode not in (0, 1) or isinstance(self.mode, bool):
             raise ValueError(f"mode must be 0 (grippers-only) or 1 (grippers+arm), got {self.mode!r}")
+        if self.control not in CONTROLS:
+            raise ValueError(f"control must be one of {CONTROLS}, got {self.control!r}")
         colors = tuple(self.colors) if isinstance(self.colors, (list, tuple)) else ()
         if not colors or len(set(colors)) != len(colors) or any(c not in COLOR_NAMES for c in colors):
             raise ValueError(f"colors must be distinct names from {COLOR_NAMES}; got {self.colors!r}")
@@ -64,7 +77,7 @@ class ArmConfig:
             raise ValueError(f"keepout must be >= 0 m, got {self.keepout!r}")
         if not isinstance(self.horizon, int) or self.horizon < 1:
             raise ValueError(f"horizon must be a positive int, got {self.horizon!r}")
-        for name in ("max_tries", "layouts_per_round", "max_rounds"):
+        for name in ("max_tries", "layouts_per_round", "max_rounds", "continuation_slots"):
             if not isinstance(getattr(self, name), int) or getattr(self, name) < 1:
                 raise ValueError(f"{name} must be a positive int, got {getattr(self, name)!r}")
         # Spheres of diameter keepout + 2r around each centre must not overlap: a loose packing
@@ -77,6 +90,12 @@ class ArmConfig:
                 f"{self.num_regions} regions {sep:.2f} m apart (keepout {self.keepout} + 2 x radius "
                 f"{self.region_radius}) cannot fit in the sampling box "
                 f"{BOX_LOW}-{BOX_HIGH} x {BOX_HEIGHT} m high; use fewer or smaller regions"
+            )
+        checks = self.exact_checks_per_round
+        if not isinstance(checks, int) or checks < self.num_regions:
+            raise ValueError(
+                f"exact_checks_per_round must be an int >= the number of regions "
+                f"({self.num_regions}), got {checks!r}"
             )
 
     @property
@@ -91,4 +110,4 @@ class ArmConfig:
         return tuple(sorted(f"{part}_{c}" for part in ("arm", "grippers") for c in self.colors))
 
 
-__all__ = ["BENCHMARK_COLORS", "COLOR_NAMES", "ArmConfig"]
+__all__ = ["BENCHMARK_COLORS", "COLOR_NAMES", "CONTROLS", "ArmConfig"]

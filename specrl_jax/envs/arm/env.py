@@ -14,12 +14,12 @@ from jax.experimental import checkify
 
 from specrl_jax.envs import spaces
 from specrl_jax.envs.arm import layout as layout_lib
+from specrl_jax.envs.arm.ik import EndEffectorIK
 from specrl_jax.envs.arm import model as arm_model
 from specrl_jax.envs.arm import sensors
 from specrl_jax.envs.arm.config import ArmConfig
 from specrl_jax.envs.arm.physics import Physics, PhysicsState
 from specrl_jax.envs.base import Env, Info, Obs
-from specrl_jax.envs.zone.mjx_import import mjx
 
 ACTION_SCALE = 0.05  # rad of joint target per unit action
 
@@ -55,8 +55,9 @@ class ArmEnv(Env):
       `ap` float32[P, 4] (mode 0: `[dir_x, dir_y, dir_z, dist]` to the nearest region of each
       colour) or float32[P, 8, 4] (mode 1: per link, arm propositions 8 links, gripper
       propositions the 2 fingers then zero rows).
-    Action: float32[7] in [-1, 1] (clipped; NaN/inf: see `base.Env.step`): joint targets
-      q + 0.05 a, 20
+    Action: in [-1, 1] (clipped; NaN/inf: see `base.Env.step`); joint control float32[7]: joint
+      targets q + 0.05 a; end-effector control float32[3]: joint targets from PyBullet's IK
+      for the grasp target moved by 0.05 a (m, z >= 0, gripper down; `arm/ik.py`). Then 20
       physics substeps of 2 ms (dt 0.04 s) under PyBullet's emulated position motor.
     Labels: mode 0 `<colour>`: grasp target within a region; mode 1 `arm_<colour>`: an arm link
       (links 1-7, hand) touches or penetrates a region, `grippers_<colour>`: both fingers do.
@@ -73,10 +74,10 @@ class ArmEnv(Env):
         self.propositions = config.propositions
         self.mj_model = arm_model.load_model(config.table_contacts)
         self.physics = Physics(self.mj_model, arm_model.FORCE_LIMITS)
+        self.ik = EndEffectorIK(self.mj_model)
         self._link_ids = arm_model.body_ids(self.mj_model)
-        self._hand_id = int(self.mj_model.body("hand").id)
         self._grasp_id = int(self.mj_model.site(arm_model.GRASP_SITE).id)
-        self._triangles = arm_model.link_triangles()[0]
+        self._triangles = arm_model.link_hulls()
         colors = [c for c in config.colors for _ in range(config.regions_per_color)]
         self.region_color = np.asarray([config.colors.index(c) for c in colors], np.int32)
         self.region_radius = np.full(config.num_regions, config.region_radius, np.float32)
@@ -94,7 +95,7 @@ class ArmEnv(Env):
 
     @property
     def action_space(self) -> spaces.Box:
-        return spaces.Box(-1.0, 1.0, (7,), jnp.float32)
+        return spaces.Box(-1.0, 1.0, (7 if self.config.control == "joints" else 3,), jnp.float32)
 
     @property
     def ap_shape(self) -> tuple[int, ...]:
@@ -179,7 +180,10 @@ class ArmEnv(Env):
                  params: ArmParams) -> tuple[Obs, ArmState, jax.Array, jax.Array, Info]:
         del key, params
         action = jnp.clip(jnp.nan_to_num(jnp.asarray(action, jnp.float32)), -1.0, 1.0)
-        target = state.physics.qpos + ACTION_SCALE * action
+        if self.config.control == "joints":
+            target = state.physics.qpos + ACTION_SCALE * action
+        else:
+            target = self.ik.joint_targets(state.physics.qpos, action)
         state = state.replace(physics=self.physics.step(state.physics, target), time=state.time + 1)
         obs, label = self._observe(state)
         return obs, state, jnp.zeros((), jnp.float32), jnp.array(False), {"propositions": label}
@@ -195,7 +199,8 @@ class ArmEnv(Env):
         data = self.physics.data(state.physics)
         ids = jnp.asarray(self._link_ids)
         grasp = data.site_xpos[self._grasp_id]
-        jacp, _ = mjx.jac(self.physics.model, data, grasp, self._hand_id)
+        # every joint moves the hand: the grasp target's velocity is sum_j axis_j x (p - anchor_j)
+        jacp = jnp.cross(data.xaxis, grasp - data.xanchor)  # [7, 3]
         quat = data.xquat[ids]
         return {
             "link_pos": data.xpos[ids],
@@ -216,7 +221,7 @@ class ArmEnv(Env):
             ego = jnp.concatenate([pose["grasp_pos"], pose["grasp_vel"]])
         else:
             dist, normal = sensors.link_sphere_distances(
-                pose["link_pos"], pose["link_mat"], jnp.asarray(self._triangles), centres, radius
+                pose["link_pos"], pose["link_mat"], self._triangles, centres, radius
             )
             features, arm, grippers = sensors.link_features(
                 dist, normal, mask, arm_model.NUM_ARM_LINKS, self.config.partial

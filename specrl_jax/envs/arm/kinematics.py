@@ -35,7 +35,7 @@ def _quat_mul(a: jax.Array, b: jax.Array) -> jax.Array:
     ])
 
 
-def _quat_to_mat_jax(q: jax.Array) -> jax.Array:
+def quat_to_mat(q: jax.Array) -> jax.Array:
     """float[3, 3] world <- body of a unit wxyz quaternion."""
     w, x, y, z = q[0], q[1], q[2], q[3]
     return jnp.stack([
@@ -86,7 +86,7 @@ class ChainKinematics:
                 j = m.body_jntadr[b]
                 axis = np.asarray(m.jnt_axis[j], np.float64)
                 anchors.append(p)
-                axes.append(_quat_to_mat_jax(q) @ jnp.asarray(axis, jnp.float32))
+                axes.append(quat_to_mat(q) @ jnp.asarray(axis, jnp.float32))
                 half = 0.5 * (qpos[m.jnt_qposadr[j]] - m.qpos0[m.jnt_qposadr[j]])
                 local = jnp.concatenate([jnp.cos(half)[None], jnp.sin(half) * axis])
                 q = _quat_mul(q, local)
@@ -95,7 +95,7 @@ class ChainKinematics:
             p, q = jax.lax.optimization_barrier((p, q))
             pos.append(p)
             quat.append(q)
-            mat.append(_quat_to_mat_jax(q))
+            mat.append(quat_to_mat(q))
         return jnp.stack(pos), jnp.stack(quat), jnp.stack(anchors), jnp.stack(axes)
 
     def fill(self, data: mjx.Data) -> mjx.Data:
@@ -103,10 +103,11 @@ class ChainKinematics:
         site_xpos, site_xmat` computed at `data.qpos`, as `mjx.kinematics` would."""
         m = self.model
         xpos, xquat, xanchor, xaxis = self.frames(data.qpos)
-        xmat = jax.vmap(_quat_to_mat_jax)(xquat)
+        xmat = jax.vmap(quat_to_mat)(xquat)
         ipos = jnp.asarray(m.body_ipos, jnp.float32)
         xipos = xpos + jnp.einsum("bij,bj->bi", xmat, ipos)
-        ximat = jnp.einsum("bij,bjk->bik", xmat, jnp.asarray(np.stack(self._ibody_mat), jnp.float32))
+        inertial = jnp.asarray(np.stack(self._ibody_mat), jnp.float32)
+        ximat = jnp.einsum("bij,bjk->bik", xmat, inertial)
         data = data.replace(xpos=xpos, xquat=xquat, xmat=xmat, xanchor=xanchor, xaxis=xaxis,
                             xipos=xipos, ximat=ximat)
         if m.ngeom:
@@ -128,4 +129,4 @@ class ChainKinematics:
         return data
 
 
-__all__ = ["ChainKinematics"]
+__all__ = ["ChainKinematics", "quat_to_mat"]

@@ -66,6 +66,16 @@ def _yaw(points: np.ndarray, angle: float) -> np.ndarray:
 
 
 @functools.cache
+def link_hulls() -> tuple[np.ndarray, ...]:
+    """The observed links' hull triangles in their body frames, one `float32[T_l, 3, 3]` per
+    link (metres, the original's link order)."""
+    return tuple(
+        _yaw(vertices, angle)[faces].astype(np.float32)
+        for vertices, faces, angle in ((*read_hull(name), angle) for name, angle in LINK_HULLS)
+    )
+
+
+@functools.cache
 def link_triangles() -> tuple[np.ndarray, np.ndarray]:
     """The observed links' hull triangles in their body frames, padded to one count.
 
@@ -87,6 +97,7 @@ def body_ids(model: mujoco.MjModel, names: tuple[str, ...] = LINK_BODIES) -> np.
 
 
 __all__ = [
-    "FORCE_LIMITS", "LINK_BODIES", "NEUTRAL_QPOS", "NUM_ARM_LINKS", "load_model", "link_triangles",
+    "FORCE_LIMITS", "LINK_BODIES", "NEUTRAL_QPOS", "NUM_ARM_LINKS", "link_hulls", "link_triangles",
+    "load_model",
     "read_hull",
 ]

@@ -90,9 +90,9 @@ class Physics:
         return PhysicsState(qpos=jnp.asarray(qpos, jnp.float32), qvel=zeros, qacc_warmstart=zeros)
 
     def data(self, state: PhysicsState) -> mjx.Data:
-        """MJX data with kinematics (link poses, COM) computed at `state`."""
+        """MJX data with the kinematics (body, joint, geom and site frames) at `state`."""
         data = self._template.replace(qpos=state.qpos, qvel=state.qvel)
-        return mjx.com_pos(self.model, self.kinematics.fill(data))
+        return self.kinematics.fill(data)
 
     def position_stage(self, data: mjx.Data) -> mjx.Data:
         """`mjx.fwd_position` with the chain's own kinematics (ChainKinematics says why); the

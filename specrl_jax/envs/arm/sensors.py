@@ -6,6 +6,8 @@ distance between each observed link's convex hull and each region sphere.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import jax
 import jax.numpy as jnp
 
@@ -45,14 +47,16 @@ def point_features(point: jax.Array, centres: jax.Array, radius: jax.Array,
     return features.astype(jnp.float32), inside
 
 
-def link_sphere_distances(link_pos: jax.Array, link_mat: jax.Array, triangles: jax.Array,
-                          centres: jax.Array, radius: jax.Array) -> tuple[jax.Array, jax.Array]:
+def link_sphere_distances(link_pos: jax.Array, link_mat: jax.Array,
+                          triangles: jax.Array | Sequence[jax.Array], centres: jax.Array,
+                          radius: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Signed link-to-sphere distances `float[L, Z]` (m, negative = penetration) and the unit
     direction `float[L, Z, 3]` from the link's nearest point toward the sphere's centre.
 
     Args:
         link_pos: float[L, 3], link_mat: float[L, 3, 3] link frames (world <- link).
-        triangles: float[L, T, 3, 3] each link's hull in its frame.
+        triangles: each link's hull in its frame, float[L, T, 3, 3], or a sequence of L
+            float[T_l, 3, 3] (each link its own triangle count: no work on padding).
         centres: float[Z, 3]; radius: float[Z].
     """
 
@@ -61,7 +65,10 @@ def link_sphere_distances(link_pos: jax.Array, link_mat: jax.Array, triangles: j
         dist, normal = jax.vmap(geometry.signed_distance, in_axes=(0, None))(local, tri)
         return dist - radius, normal @ mat.T
 
-    return jax.vmap(one_link)(link_pos, link_mat, triangles)
+    if not isinstance(triangles, (list, tuple)):
+        return jax.vmap(one_link)(link_pos, link_mat, triangles)
+    out = [one_link(link_pos[i], link_mat[i], jnp.asarray(t)) for i, t in enumerate(triangles)]
+    return jnp.stack([d for d, _ in out]), jnp.stack([n for _, n in out])
 
 
 def link_features(dist: jax.Array, normal: jax.Array, color_mask: jax.Array, num_arm: int,
