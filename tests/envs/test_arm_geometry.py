@@ -59,14 +59,22 @@ def test_forward_kinematics_match_mujoco_c_on_random_joints(env):
     rng = np.random.default_rng(0)
     poses = jax.jit(env.poses)
     ids = arm_model.body_ids(model)
+    site = model.site(arm_model.GRASP_SITE).id
     for _ in range(5):
         qpos = rng.uniform(model.jnt_range[:, 0], model.jnt_range[:, 1])
+        qvel = rng.uniform(-1, 1, 7)
         data.qpos[:] = qpos
         mujoco.mj_kinematics(model, data)
-        pose = poses(_state(env, qpos))
+        mujoco.mj_comPos(model, data)
+        jacp = np.zeros((3, 7))
+        mujoco.mj_jacSite(model, data, jacp, None, site)
+        state = _state(env, qpos)
+        state = state.replace(physics=state.physics.replace(qvel=jnp.asarray(qvel, jnp.float32)))
+        pose = poses(state)
         assert np.abs(pose["link_pos"] - data.xpos[ids]).max() < 2e-5
         assert np.abs(pose["com_pos"] - data.xipos[ids]).max() < 2e-5
         assert np.abs(pose["link_mat"].reshape(-1, 9) - data.xmat[ids]).max() < 2e-5
+        assert np.abs(pose["grasp_vel"] - jacp @ qvel).max() < 2e-5  # m/s
 
 
 def _model_with_ball(radius):
