@@ -5,8 +5,8 @@ batch sharded over every local device (`env_mesh()`) against the unsharded train
     python benchmarks/brax_and_sharding.py --num-envs 2048 --unroll 20     # a GPU
     python benchmarks/brax_and_sharding.py --num-envs 16 --unroll 8 --updates 2 --brax-evals 3
 
-Env-steps/s of training exclude compilation: ours times a second chunk of `--updates` updates;
-Brax's is its own `training/sps` of the last training epoch (the first includes compilation).
+Env-steps/s of training exclude compilation: ours is the median of 5 timed chunks of `--updates`
+updates after a first one; Brax's is its own `training/sps` of the last training epoch (the first includes compilation).
 Both use one rollout of every env per update, 2 minibatches and 4 epochs. Writes JSON to `--out`.
 """
 
@@ -24,8 +24,10 @@ import jax
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def ours(env_id: str, num_envs: int, unroll: int, updates: int, sharded: bool) -> float:
-    """Env-steps/s of our PPO (GenZ-LTL's method, plain PPO epochs) over `updates` updates."""
+def ours(env_id: str, num_envs: int, unroll: int, updates: int, sharded: bool,
+         repeats: int = 5) -> float:
+    """Env-steps/s of our PPO (GenZ-LTL's method, plain PPO epochs) over `updates` updates, the
+    median of `repeats` timed chunks."""
     from specrl_jax.baselines import genz
     from specrl_jax.baselines.ppo import env_mesh, make_train
     from specrl_jax.envs.registry import make
@@ -39,9 +41,12 @@ def ours(env_id: str, num_envs: int, unroll: int, updates: int, sharded: bool) -
     runner = jax.jit(trainer.init)(jax.random.key(0))
     chunk = jax.jit(trainer.updates, static_argnums=1)
     runner, _ = jax.block_until_ready(chunk(runner, updates))  # compile and warm up
-    start = time.perf_counter()
-    runner, _ = jax.block_until_ready(chunk(runner, updates))
-    return updates * config.batch_size / (time.perf_counter() - start)
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        runner, _ = jax.block_until_ready(chunk(runner, updates))
+        times.append(time.perf_counter() - start)
+    return updates * config.batch_size / sorted(times)[len(times) // 2]
 
 
 def brax_ppo(env_id: str, num_envs: int, unroll: int, evals: int, updates: int) -> float:
