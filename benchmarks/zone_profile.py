@@ -18,6 +18,10 @@ times, on whatever device JAX runs on:
                and position update; RK4: the final combination, its stage evaluations are
                forward passes)
 
+By default the first three are one stage ("position") and sensors and integration are the
+"rest": the env step less its own code and the forward passes (one compile per chain, so `--fine`
+costs 7 compiles instead of 3).
+
 The MJX stages are timed as cumulative chains (kinematics; kinematics + collision; ...), each a
 `vmap` over the batch inside a `lax.fori_loop` of `--loops` applications whose output is fed back
 and whose own inputs (qpos, qvel, ctrl, qacc_warmstart) get a loop-variant zero added, so that
@@ -87,7 +91,7 @@ def _integration(m, d):
 
 
 #: Cumulative prefixes of the forward pass; a stage's time is its prefix's minus the previous one.
-STAGES: tuple[tuple[str, Callable], ...] = (
+FINE: tuple[tuple[str, Callable], ...] = (
     ("kinematics", _kinematics),
     ("collision", collision_driver.collision),
     ("constraint", constraint.make_constraint),
@@ -95,6 +99,13 @@ STAGES: tuple[tuple[str, Callable], ...] = (
     ("solver", solver.solve),
     ("sensors", _sensors),
     ("integration", _integration),
+)
+#: The default split (3 compiles instead of 7): what `--fine` times apart, grouped.
+COARSE: tuple[tuple[str, Callable], ...] = (
+    ("position", lambda m, d: constraint.make_constraint(
+        m, collision_driver.collision(m, _kinematics(m, d)))),
+    ("smooth", _smooth),
+    ("solver", solver.solve),
 )
 
 
@@ -144,7 +155,7 @@ def _start_states(env, batch: int, rng: np.random.Generator):
 
 
 def profile(robot: str, batch: int, warm: int, loops: int, repeats: int,
-            overrides: dict[str, Any], with_reset: bool) -> dict[str, Any]:
+            overrides: dict[str, Any], with_reset: bool, fine: bool) -> dict[str, Any]:
     """Per-stage timings of one robot's env step (see the module docstring)."""
     solver_cfg = dataclasses.replace(DEFAULT_SOLVERS[robot], **overrides)
     env, params = make_zone(level_config(robot, 0, solver=solver_cfg))
@@ -182,8 +193,9 @@ def profile(robot: str, batch: int, warm: int, loops: int, repeats: int,
     forwards = 10 * (4 if rk4 else 1) + 1
     counts = {"integration": 10, "sensors": forwards if solver_cfg.substep_sensors else 1}
     previous = 0.0
-    for k, (name, _) in enumerate(STAGES):
-        chain = [stage for _, stage in STAGES[:k + 1]]
+    stages = FINE if fine else COARSE
+    for k, (name, _) in enumerate(stages):
+        chain = [stage for _, stage in stages[:k + 1]]
 
         def looped(d, chain=chain):
             def body(i, x):
@@ -209,6 +221,9 @@ def profile(robot: str, batch: int, warm: int, loops: int, repeats: int,
         previous = ms
         print(f"  {robot} {name}: {rows[name]['ms']:.3f} ms (chain {ms:.3f} ms)", flush=True)
     total = rows["env step"]["ms"]
+    if not fine:  # the rest: sensors (once), integration and the integrator's glue
+        rest = total - rows["env own code"]["ms"] - forwards * previous
+        rows["rest (sensors, integration)"] = {"ms": rest, "compile_s": 0.0, "count": 1}
     for row in rows.values():
         row["share"] = row["ms"] * row["count"] / total
     impl = data._impl
@@ -243,6 +258,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--solver", nargs="*", default=[], metavar="KEY=VALUE",
                         help="Solver field overrides on top of the robot's default")
+    parser.add_argument("--fine", action="store_true",
+                        help="time the 7 stages apart (7 compiles; default: position, smooth, "
+                        "solver and the rest)")
     parser.add_argument("--reset", action="store_true",
                         help="also time (and compile) the vmapped exact reset")
     parser.add_argument("--out", required=True, help="JSON output path")
@@ -258,7 +276,7 @@ def main() -> None:
     for robot in args.robots:
         start = time.perf_counter()
         r = profile(robot, args.batch, args.warm, args.loops, args.repeats, overrides,
-                    args.reset)
+                    args.reset, args.fine)
         r["wall_s"] = time.perf_counter() - start
         meta["results"].append(r)
         with open(args.out, "w") as f:  # after each robot, so a timeout keeps what was measured

@@ -22,12 +22,12 @@ case "$MODE" in
     timeout 115 $T --envs AntLTL0-v0 CarLTL0-v0 --batches 16384 --steps 5 --repeats 1 --solver $BEFORE
     ;;
   profile)
-    timeout 110 $P --robots Ant --out "$OUT/profile_ant.json"
-    timeout 90 $P --robots Car --out "$OUT/profile_car.json"
+    timeout 130 $P --robots Ant --out "$OUT/profile_ant.json"
+    timeout 100 $P --robots Car --out "$OUT/profile_car.json"
     ;;
   profile-before)
-    timeout 110 $P --robots Ant --solver $BEFORE --out "$OUT/profile_ant_before.json"
-    timeout 90 $P --robots Car --solver $BEFORE --out "$OUT/profile_car_before.json"
+    timeout 130 $P --robots Ant --solver $BEFORE --out "$OUT/profile_ant_before.json"
+    timeout 100 $P --robots Car --solver $BEFORE --out "$OUT/profile_car_before.json"
     ;;
   variants)
     timeout 115 $T --envs CarLTL0-v0 AntLTL0-v0 --batches 65536 --steps 5 --repeats 1 --solver unroll=2
