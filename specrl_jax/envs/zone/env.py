@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import collections
+import dataclasses
 from typing import Any
 
 import gymnasium
@@ -82,7 +83,10 @@ class ZoneEnv(Env):
         self.robot = ROBOTS[config.robot]
         self.propositions = config.propositions
         self._num_parallel = check_feasible(config)
-        self.mj_model = load_model(config.robot, config.solver)
+        solver = config.solver
+        if config.physics != "jax":  # the contact cap is MJX-JAX's; Warp keeps its own buffer
+            solver = dataclasses.replace(solver, max_contacts=0)
+        self.mj_model = load_model(config.robot, solver)
         self.physics = Physics(
             self.mj_model, config.physics, config.solver.substep_sensors, config.solver.unroll
         )

@@ -113,17 +113,17 @@ class Physics:
         self.mj_model = model
         self.model = mjx.put_model(model, impl=backend)
         self.unroll = unroll
-        self.substep_model = self.model
-        if backend == "jax" and not substep_sensors:
-            flags = int(self.model.opt.disableflags) | int(DisableBit.SENSOR)
-            self.substep_model = self.model.replace(
-                opt=self.model.opt.replace(disableflags=DisableBit(flags))
-            )
         if backend == "warp":
             # Warp prints a line per world and step when a cap is hit (line-search iterations,
             # contacts); across 65,536 worlds that floods the output. The caps still apply.
             self.model = self.model.replace(
                 opt=self.model.opt.replace(_impl=self.model.opt._impl.replace(warn_overflow=0))
+            )
+        self.substep_model = self.model
+        if backend == "jax" and not substep_sensors:
+            flags = int(self.model.opt.disableflags) | int(DisableBit.SENSOR)
+            self.substep_model = self.model.replace(
+                opt=self.model.opt.replace(disableflags=DisableBit(flags))
             )
         # C's capsule-plane frame, for models that have such contacts (the Ant's, not
         # Point's or Car's); checked here so that an MJX without the expected table fails now.
