@@ -232,9 +232,10 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
 
 @command(
     "train",
-    "Train a baseline (GenZ-LTL, DeepLTL, LTL2Action or GCRL-LTL) with the shared PPO on any "
+    "Train a baseline (GenZ-LTL, DeepLTL, LTL2Action, GCRL-LTL or RAD-Embeddings) with the "
+    "shared PPO on any "
     "single-agent world; writes a run directory.",
-    arg("--method", required=True, choices=("genz", "deepltl", "ltl2action", "gcrl")),
+    arg("--method", required=True, choices=("genz", "deepltl", "ltl2action", "gcrl", "rad")),
     arg("--env", default="LetterLTL0-v0", help="any single-agent env ID (`specrl-jax envs`)"),
     arg("--seeds", type=positive_int, default=1, help="independent runs trained side by side"),
     arg("--seed", type=nonnegative_int, default=0, help="base seed of the runs (default 0)"),

@@ -10,11 +10,12 @@ init (current state), normal (state node), temp (transition node), accepting, re
 non-accepting state whose every transition is a self-loop), at indices -6 .. -1 as the original.
 
 Layout: node 0 is the AND node, nodes 1 .. Ns-1 the state nodes, nodes Ns .. Ns+Nt-1 the
-transition nodes (each block padded). Edges are stored per receiver, as in-neighbour slots: a
-state or AND node has up to D-1 in-neighbours, a transition node exactly one (its successor
-state); slot 0 is the node itself. The network then gathers its neighbours and takes the
-attention softmax over the slots: the same sums as segment ops over an edge list, without a
-scatter (XLA's scatter made the encoder 10x slower on a CPU).
+transition nodes (each block padded). Edges are stored per receiver, as in-neighbour slots
+int32[Nn, D]: slot 0 is the node itself; a state or AND node has up to D-1 in-neighbours, a
+transition node one (its successor state). The network gathers each node's slots and takes the
+attention softmax over them: the sums of segment ops over an edge list, without a scatter
+(XLA's scatter made the encoder 10x slower on a CPU). All nodes go through one gather and one
+softmax (separate ones for the two node blocks crashed XLA:CPU under nested vmaps).
 
 The host builds, per conjunction of a bank, the graph of its full minimal DFAs once
 (`build_graphs`); inside `jit`, `graph_of` masks the nodes that the current states can no longer
@@ -79,17 +80,14 @@ class GraphBank:
 
 
 class Graph(NamedTuple):
-    """One graph (leading batch axes allowed): `features` float32[Nn, F], `node_mask` bool[Nn];
-    in-neighbour slots (slot 0: the node itself) of the AND and state nodes, `neighbours`
-    int32[Ns, D] with `neighbour_mask` bool[Ns, D], and of the transition nodes,
-    `successor` int32[Nt, 2] with `successor_mask` bool[Nt, 2]. Node 0 is the AND node."""
+    """One graph (leading batch axes allowed): `features` float32[Nn, F], `node_mask` bool[Nn],
+    and each node's in-neighbour slots `neighbours` int32[Nn, D] (slot 0: the node itself) with
+    `neighbour_mask` bool[Nn, D]. Node 0 is the AND node."""
 
     features: jax.Array
     node_mask: jax.Array
     neighbours: jax.Array
     neighbour_mask: jax.Array
-    successor: jax.Array
-    successor_mask: jax.Array
 
 
 def _cdfa_graph(delta: np.ndarray, accepting: np.ndarray, num_states: np.ndarray) -> dict:
@@ -184,9 +182,8 @@ def graph_of(graphs: GraphBank, bank: DFABank, index: jax.Array, q: jax.Array) -
     node_mask = (kind == KIND_AND) | ((kind > KIND_AND) & used & reachable)
     init = (kind == KIND_STATE) & (state == q[conj_safe])
     features = graphs.features[index].astype(jnp.float32).at[:, INIT].set(init)
-    num_state_nodes = graphs.in_transitions.shape[-2]
-    # AND and state nodes: themselves, then their in-neighbours; the AND node's are the current
-    # state of each used conjunct
+    # in-neighbours of the AND node (the current state of each used conjunct), of the state
+    # nodes (their transition nodes) and of the transition nodes (their successor state)
     current = graphs.state_node[index, jnp.arange(q.shape[-1]), q].astype(jnp.int32)
     current = jnp.where(bank.num_states[index] > 0, current, -1)
     incoming = graphs.in_transitions[index].astype(jnp.int32)
@@ -194,16 +191,14 @@ def graph_of(graphs: GraphBank, bank: DFABank, index: jax.Array, q: jax.Array) -
     incoming = jnp.pad(incoming, ((0, 0), (0, width - incoming.shape[-1])), constant_values=-1)
     and_row = jnp.pad(current, (0, width - current.shape[-1]), constant_values=-1)
     incoming = incoming.at[0].set(and_row)
-    own = jnp.arange(num_state_nodes)[:, None]
+    succ = graphs.successor[index].astype(jnp.int32)
+    succ_rows = jnp.full((succ.shape[-1], width), -1, jnp.int32).at[:, 0].set(succ)
+    incoming = jnp.concatenate([incoming, succ_rows], axis=0)
+    own = jnp.arange(incoming.shape[0])[:, None]
     neighbours = jnp.concatenate([own, incoming], axis=1)
     neighbour_mask = (neighbours >= 0) & node_mask[jnp.maximum(neighbours, 0)] & node_mask[own]
-    # transition nodes: themselves and their successor state
-    trans = num_state_nodes + jnp.arange(graphs.successor.shape[-1])
-    succ = graphs.successor[index].astype(jnp.int32)
-    successor = jnp.stack([trans, jnp.maximum(succ, 0)], axis=1)
-    successor_mask = node_mask[trans][:, None] & jnp.stack([trans >= 0, succ >= 0], axis=1)
     return Graph(features * node_mask[:, None], node_mask, jnp.maximum(neighbours, 0),
-                 neighbour_mask, successor, successor_mask)
+                 neighbour_mask)
 
 
 def unit_columns(key: jax.Array, shape: Sequence[int], dtype: Any = jnp.float32) -> jax.Array:
@@ -213,12 +208,19 @@ def unit_columns(key: jax.Array, shape: Sequence[int], dtype: Any = jnp.float32)
     return w / jnp.linalg.norm(w, axis=0, keepdims=True)
 
 
+def _gather_nodes(src: jax.Array, ids: jax.Array) -> jax.Array:
+    """`src[g, ids[g, ...]]` for float32[G, Nn, H, F] and int32[G, ...] (one flat gather)."""
+    num_graphs, num_nodes = src.shape[:2]
+    offsets = (jnp.arange(num_graphs) * num_nodes).reshape(-1, *([1] * (ids.ndim - 1)))
+    return src.reshape(num_graphs * num_nodes, *src.shape[2:])[ids + offsets]
+
+
 def _attend(src: jax.Array, dst: jax.Array, slots: jax.Array, mask: jax.Array,
             attn: jax.Array) -> jax.Array:
     """GATv2 aggregation for receivers `dst` float32[G, R, H, F] over their in-neighbour slots
     `slots` int32[G, R, D] (node ids within the graph; `mask` bool[G, R, D]) of the senders'
     `src` float32[G, Nn, H, F]. Returns float32[G, R, H, F]."""
-    message = jax.vmap(lambda s, i: s[i])(src, slots)  # [G, R, D, H, F]
+    message = _gather_nodes(src, slots)
     score = jnp.sum(nn.leaky_relu(message + dst[:, :, None], 0.2) * attn, axis=-1)  # [G, R, D, H]
     score = jnp.where(mask[..., None], score, -jnp.inf)
     top = jax.lax.stop_gradient(jnp.max(score, axis=2, keepdims=True))
@@ -232,8 +234,8 @@ class GATv2Layer(nn.Module):
     """One GATv2 convolution on `[h, h0]` of `heads` heads, `features` each, tanh per head,
     heads summed.
 
-    Args (call): h, h0 float32[G, Nn, features] node states of G graphs, and the graphs'
-    `neighbours`/`neighbour_mask` [G, Ns, D] and `successor`/`successor_mask` [G, Nt, 2].
+    Args (call): h, h0 float32[G, Nn, features] node states of G graphs, and the graphs
+    (`neighbours`, `neighbour_mask` [G, Nn, D]).
     Returns float32[G, Nn, features].
     """
 
@@ -250,10 +252,8 @@ class GATv2Layer(nn.Module):
         both = h @ kernel[:self.features] + (h0 @ kernel[self.features:] + bias)
         shape = (*h.shape[:2], self.heads, self.features)
         src, dst = both[..., :width].reshape(shape), both[..., width:].reshape(shape)
-        num_state_nodes = graph.neighbours.shape[1]
-        top = _attend(src, dst[:, :num_state_nodes], graph.neighbours, graph.neighbour_mask, attn)
-        low = _attend(src, dst[:, num_state_nodes:], graph.successor, graph.successor_mask, attn)
-        return jnp.sum(jnp.tanh(jnp.concatenate([top, low], axis=1)), axis=2)
+        out = _attend(src, dst, graph.neighbours, graph.neighbour_mask, attn)
+        return jnp.sum(jnp.tanh(out), axis=2)
 
 
 class RADEncoder(nn.Module):

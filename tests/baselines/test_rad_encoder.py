@@ -35,14 +35,10 @@ def _graph(cdfas, index=0, q=None, **caps):
 
 
 def _edges(g):
-    """(sender, receiver) of every live edge but the self edges."""
+    """(sender, receiver) of every live edge but the self edges (slot 0)."""
     g = jax.tree.map(np.asarray, g)
-    ns = g.neighbours.shape[0]
-    edges = [(int(g.neighbours[i, d]), i) for i in range(ns)
-             for d in range(1, g.neighbours.shape[1]) if g.neighbour_mask[i, d]]
-    edges += [(int(g.successor[t, 1]), ns + t) for t in range(g.successor.shape[0])
-              if g.successor_mask[t, 1]]
-    return edges
+    return [(int(g.neighbours[i, d]), i) for i in range(g.neighbours.shape[0])
+            for d in range(1, g.neighbours.shape[1]) if g.neighbour_mask[i, d]]
 
 
 def _encoder():
@@ -57,8 +53,8 @@ def test_graph_of_a_hand_built_dfa():
     # AND, 4 states (canonical: 0 start, 1 after a, 2 fail, 3 accept), 4 transition nodes
     assert g.node_mask.sum() == 9 and feats.shape == (16, 4 + 6)
     # every live node attends to itself (slot 0), padding and masked nodes to nothing
-    assert np.array_equal(g.neighbour_mask[:, 0], g.node_mask[:8])
-    assert np.array_equal(g.successor_mask[:, 0], g.node_mask[8:])
+    assert np.array_equal(g.neighbour_mask[:, 0], g.node_mask)
+    assert np.array_equal(g.neighbours[:, 0], np.arange(16))
     assert feats[0, enc.AND] == 1 and feats[:, enc.AND].sum() == 1
     states = np.flatnonzero(feats[:, enc.NORMAL])
     assert len(states) == 4 and feats[states[0], enc.INIT] == 1 and feats[:, enc.INIT].sum() == 1
@@ -133,14 +129,13 @@ def test_embedding_depends_on_the_language_only():
     # node order (AND stays node 0, each block keeps its nodes) and slot order do not matter
     g = jax.tree.map(np.asarray, _graph([[HAND, EVENTUALLY_B]]))
     rng = np.random.default_rng(0)
-    ns, nt = g.neighbours.shape[0], g.successor.shape[0]
+    ns = CAPS["num_state_nodes"]
+    nt = g.node_mask.shape[0] - ns
     order = np.r_[0, 1 + rng.permutation(ns - 1), ns + rng.permutation(nt)]  # new -> old
     where = np.argsort(order)  # old -> new
     slots = np.r_[0, 1 + rng.permutation(g.neighbours.shape[1] - 1)]
     shuffled = enc.Graph(g.features[order], g.node_mask[order],
-                         where[g.neighbours[order[:ns]]][:, slots],
-                         g.neighbour_mask[order[:ns]][:, slots],
-                         where[g.successor[order[ns:] - ns]], g.successor_mask[order[ns:] - ns])
+                         where[g.neighbours[order]][:, slots], g.neighbour_mask[order][:, slots])
     np.testing.assert_allclose(emb(shuffled), base, atol=1e-5)
     # advancing masks the graph into that of the minimised residual DFA
     residual = rad.minimise(rad.DFA(HAND.delta, HAND.accepting, 1))[0]

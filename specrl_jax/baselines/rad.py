@@ -1,0 +1,226 @@
+"""RAD-Embeddings (Yalcinkaya et al., NeurIPS'24): policies conditioned on a pretrained, frozen
+embedding of the task's conjunction of DFAs.
+
+Training: the task loop runs a `tasks.dfa_source.DFASource` over a bank of RAD conjunctions
+(`automata.rad_sampler`, the original's `CompositionalReachAvoidDerived` sampler over the
+world's alphabet); +1 and the end of the episode when every DFA accepts, -1 and the end when
+one can no longer accept. Every observation carries the 32-d embedding of the advanced,
+minimised conjunction by the pretrained GATv2 encoder (`rad_encoder`, parameters shipped in
+`baselines/data/rad_encoder_<family>.msgpack`, made by `benchmarks/rad_pretrain.py`), computed in
+the task loop with the encoder frozen (the original's `--freeze`), so PPO never backpropagates
+into it. The network is LTL2Action's: observation encoder (grid CNN, vector MLP [128, 64] ReLU,
+image CNN) concatenated with the embedding, actor [64, 64, 64] ReLU, critic [64, 64] Tanh,
+dense layers with unit-norm weight vectors and zero biases.
+
+Test time (`make_policy`): the evaluated specs are the project's compiled automata; each
+co-safe spec becomes its minimal DFA of good prefixes (`rad_sampler.bank_of_specs`) and the
+agent reads the DFA state off the task loop's automaton state through the minimisation's state
+map. Specs that are not co-safe have no DFA: `usable_suites` leaves infinite suites out, and a
+policy given such a spec raises ValueError.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from specrl_jax import specs
+from specrl_jax.automata import rad_sampler
+from specrl_jax.automata.rad_sampler import DFABank
+from specrl_jax.baselines import rad_pretrain
+from specrl_jax.baselines.encoders import ImageCNN, check_kinds, obs_parts
+from specrl_jax.baselines.ppo.networks import Categorical, GaussianHead, LetterCNN, PolicyOutput
+from specrl_jax.baselines.ppo.train import PPOConfig, world_config
+from specrl_jax.baselines.rad_encoder import GraphBank, RADEncoder, build_graphs, graph_of
+from specrl_jax.baselines.rad_encoder import unit_columns
+from specrl_jax.baselines.train_env import TaskTrainEnv
+from specrl_jax.tasks import TaskEnv
+from specrl_jax.tasks.dfa_source import DFASource
+
+DEFAULT_BANK_SIZE = 4096
+
+
+class RADObs(NamedTuple):
+    """What the RAD policy reads (one env; leading batch axes allowed): the world observation as
+    encoder parts and the frozen embedding float32[32] of the task's conjunction of DFAs."""
+
+    parts: dict
+    embedding: jax.Array
+
+
+def _dense(features: int) -> nn.Dense:
+    return nn.Dense(features, kernel_init=unit_columns)
+
+
+class RADNetwork(nn.Module):
+    """Observation encoder and the frozen DFA embedding, concatenated; actor [64, 64, 64] ReLU
+    then logits (or a Gaussian with Tanh mean and state-dependent std); critic [64, 64] Tanh.
+    `encoder` names the frozen encoder's parameters (a world family or a file path)."""
+
+    num_actions: int  # discrete actions, or the action dimension when `continuous`
+    encoder: str
+    continuous: bool = False
+
+    @nn.compact
+    def __call__(self, obs: RADObs) -> PolicyOutput:
+        parts, out = obs.parts, []
+        if "grid" in parts:
+            out.append(LetterCNN()(parts["grid"]))
+        if "vector" in parts:
+            out.append(nn.relu(_dense(64)(nn.relu(_dense(128)(parts["vector"])))))
+        if "image" in parts:
+            out.append(ImageCNN()(parts["image"]))
+        emb = jnp.concatenate([*out, obs.embedding], axis=-1)
+        hidden = emb
+        for width in (64, 64, 64):
+            hidden = nn.relu(_dense(width)(hidden))
+        if self.continuous:
+            pi = GaussianHead(self.num_actions)(hidden)
+        else:
+            pi = Categorical(_dense(self.num_actions)(hidden))
+        value = _dense(1)(nn.tanh(_dense(64)(nn.tanh(_dense(64)(emb)))))[..., 0]
+        zeros = jnp.zeros_like(value)
+        return PolicyOutput(pi, value, zeros, zeros)
+
+
+def network_for(world: Any, encoder: str = "letter") -> RADNetwork:
+    """The RAD network for a world's action space, reading the frozen encoder `encoder`."""
+    check_kinds(world.obs_kinds)
+    space = world.action_space
+    if hasattr(space, "n"):
+        return RADNetwork(int(space.n), encoder)
+    return RADNetwork(int(space.shape[0]), encoder, continuous=True)
+
+
+def embedder(encoder_params: Any, graphs: GraphBank, bank: DFABank
+             ) -> Callable[[jax.Array, jax.Array], jax.Array]:
+    """`embed(index, q) -> float32[32]`: the frozen embedding of conjunction `index` of `bank`
+    at states `q` int32[N] (one task)."""
+    encoder = RADEncoder()
+
+    def embed(index, q):
+        graph = graph_of(graphs, bank, index, q)
+        return jax.lax.stop_gradient(encoder.apply(encoder_params, graph))
+
+    return embed
+
+
+@dataclasses.dataclass(frozen=True)
+class RAD:
+    """The RAD method for the shared trainer: the task loop over a DFA source."""
+
+    env: TaskTrainEnv
+    network: RADNetwork
+
+    def init_task_params(self) -> None:
+        return None
+
+    def update_task_params(self, task_params: Any, stats: dict[str, jax.Array]) -> Any:
+        return task_params
+
+
+_BANKS: dict[tuple, tuple[DFABank, GraphBank]] = {}
+
+
+def training_bank(alphabet: np.ndarray, bank_size: int = DEFAULT_BANK_SIZE, seed: int = 0
+                  ) -> tuple[DFABank, GraphBank]:
+    """A bank of `bank_size` RAD conjunctions over `alphabet` and its graphs (built once per
+    process and alphabet: training, evaluation and loading each build the method)."""
+    alphabet = np.asarray(alphabet, bool)
+    key = (alphabet.tobytes(), alphabet.shape, bank_size, seed)
+    if key not in _BANKS:
+        bank = rad_sampler.sample_bank(bank_size, alphabet, seed, rad_pretrain.MAX_GRAPH_NODES)
+        _BANKS[key] = (bank, build_graphs(bank))
+    return _BANKS[key]
+
+
+def make_method(world: Any, params: Any, family: str = "letter", bank: DFABank | None = None,
+                bank_size: int = DEFAULT_BANK_SIZE, seed: int = 0,
+                encoder: str | None = None, encoder_params: Any = None) -> RAD:
+    """RAD on any single-agent world: a bank of RAD conjunctions (or `bank`), embedded by the
+    frozen encoder `encoder` (default: the shipped one of `family`; or `encoder_params`)."""
+    alphabet = np.asarray(world.alphabet, bool)
+    encoder = family if encoder is None else encoder
+    if encoder_params is None:
+        encoder_params = rad_pretrain.load_encoder(encoder, alphabet.shape[0])
+    if bank is None:
+        bank, graphs = training_bank(alphabet, bank_size, seed)
+    else:
+        graphs = build_graphs(bank)
+    embed = embedder(encoder_params, graphs, bank)
+    kinds = dict(world.obs_kinds)
+
+    def observe(obs, state):
+        return RADObs(obs_parts(obs, kinds), embed(state.task.index, state.task.q))
+
+    def signals(info):
+        reward = info["success"].astype(jnp.float32) - info["violation"].astype(jnp.float32)
+        return reward, jnp.zeros((), jnp.float32), jnp.zeros((), bool)
+
+    task = TaskEnv(world, DFASource(bank, world.alphabet), observe)
+    return RAD(TaskTrainEnv(task, params, signals), network_for(world, encoder))
+
+
+def summarise(row: dict[str, float]) -> dict[str, float]:
+    episodes = max(row["episodes"], 1.0)
+    return {**row, "success_rate": row["successes"] / episodes,
+            "violation_rate": row["violations"] / episodes}
+
+
+def ppo_config(world: str = "letter", **overrides: Any) -> PPOConfig:
+    """RAD's downstream settings (the original's scripts, LTL2Action's PPO): LetterWorld 16 x
+    128, minibatch 256, 4 epochs, gamma 0.94, entropy 0.01; ZoneEnv 16 x 4096, minibatch 2048,
+    10 epochs, gamma 0.998, entropy 0.003; lr 3e-4, GAE 0.95, clip 0.2. The arm (no original
+    setting) takes ZoneEnv's with gamma 0.99 and 16 x 1024."""
+    return world_config(world, {"update_epochs": 4 if world == "letter" else 10, "loss": "ppo",
+                                "vf_coef": 0.5, "gae_lambda": 0.95, "lr": 3e-4}, **overrides)
+
+
+def usable_suites(suites: Sequence[str], log: Callable[[str], None] = print) -> list[str]:
+    """The suites whose specs are co-safe (finite horizon): RAD's DFAs decide those only."""
+    keep = [s for s in suites if specs.suite_info(s).horizon == "finite"]
+    if len(keep) < len(suites):
+        log(f"RAD-Embeddings: skipping {sorted(set(suites) - set(keep))} (not co-safe: no DFA)")
+    return keep
+
+
+def make_policy(network: RADNetwork, alphabet: jax.Array, obs_kinds: Mapping[str, str],
+                deterministic: bool = False, encoder_params: Any = None
+                ) -> Callable[..., jax.Array]:
+    """RAD's test-time agent: `policy(params, obs, task_state, key) -> action` for
+    `specrl_jax.eval.evaluate`. The evaluated bank of compiled specs becomes a bank of DFAs once
+    (at trace time); each step embeds the DFA at the state the task loop's automaton state
+    maps to. Actions are sampled, or the mode where `deterministic`. The frozen encoder is
+    `network.encoder`'s unless `encoder_params` are given.
+
+    Raises:
+        ValueError (when traced): an evaluated spec is not co-safe.
+    """
+    kinds = dict(obs_kinds)
+    if encoder_params is None:
+        encoder_params = rad_pretrain.load_encoder(network.encoder, int(np.shape(alphabet)[0]))
+    banks: dict[Any, tuple[Callable, jax.Array]] = {}
+
+    def bank_for(task_state):
+        spec_bank = task_state.task.bank
+        if spec_bank not in banks:
+            with jax.ensure_compile_time_eval():
+                bank, state_map = rad_sampler.bank_of_specs(spec_bank.specs)
+                banks[spec_bank] = (embedder(encoder_params, build_graphs(bank), bank),
+                                    jnp.asarray(state_map))
+        return banks[spec_bank]
+
+    def policy(params, obs, task_state, key):
+        embed, state_map = bank_for(task_state)
+        index = task_state.spec_index
+        q = jnp.maximum(state_map[index, task_state.q], 0)[None]  # reached states map to >= 0
+        out = network.apply(params, RADObs(obs_parts(obs, kinds), embed(index, q)))
+        return out.pi.mode() if deterministic else out.pi.sample(key)
+
+    return policy
