@@ -2,9 +2,11 @@
 env-steps/s; write the encoder of each world family to
 `specrl_jax/baselines/data/rad_encoder_<family>.msgpack` (or --params-dir) with a JSON beside it.
 
-Regenerate the shipped encoders (one H100, about 4 minutes for both families):
+Regenerate the shipped encoders (one H100, about 4 minutes for both families; then copy the
+four rad_encoder_* files from --params-dir into specrl_jax/baselines/data/):
     python benchmarks/rad_pretrain.py --families letter zone --total-steps 10000000 \
-        --num-envs 512 --num-steps 64 --minibatches 8 --max-wall 90 --out /tmp/rad_pretrain.json
+        --num-envs 1024 --num-steps 64 --minibatches 16 --bank-size 4096 --max-wall 95 \
+        --params-dir /tmp/rad_encoders --out /tmp/rad_pretrain_h100.json
 On a CPU, a little (to see it learn):
     python benchmarks/rad_pretrain.py --families letter --total-steps 40960 --num-envs 16 \
         --num-steps 128 --minibatches 2 --bank-size 1024 --out /tmp/rad_pretrain_cpu.json
