@@ -153,10 +153,11 @@ def time_to_levels(rows: Sequence[dict[str, Any]], levels: Sequence[float] = SUC
 def make_policy(method: str, world: Any, method_obj: Any, deterministic: bool | None = None,
                 world_family: str = "letter", **options: Any):
     """The method's test-time agent; `deterministic` None = the reference's setting (GenZ-LTL
-    mode actions; DeepLTL sampled actions on LetterWorld, mode actions on ZoneEnv)."""
+    mode actions; DeepLTL and GCRL-LTL sampled actions on LetterWorld, mode actions on
+    ZoneEnv)."""
     module = method_module(method)
     if deterministic is None:
-        deterministic = method in ("genz", "gcrl") or world_family != "letter"
+        deterministic = method == "genz" or world_family != "letter"
     return module.make_policy(method_obj.network, world.alphabet, world.obs_kinds,
                               deterministic=deterministic, **options)
 

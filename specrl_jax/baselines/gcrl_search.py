@@ -18,7 +18,11 @@ acceptance, epsilon edges of limit-deterministic automata):
   keep the last goal and cost `HOP` (the world produces the empty label by itself);
 - edges into violation states are absent, and so is a goal edge to another proposition from a
   state where the empty label is a violation (the way there crosses empty cells): once in such
-  a state (e.g. after the jump of `F G a`) the agent can only stay on the proposition it is on.
+  a state (e.g. after the jump of `F G a`) the agent can only stay on the proposition it is on;
+- self-loops are edges only where they are accepting or the state has an epsilon edge (to stand
+  on a proposition before jumping), as the original's path graph has no self-loop goals: a
+  detour through an unrelated proposition would otherwise trade the critic's value of the next
+  goal for the GCVF's.
 
 Every edge costs at least `HOP`, so every cycle costs more than 0 and, among plans of equal
 value, the one of fewer steps wins (the original's Dijkstra kept the first found). All-pairs
@@ -93,13 +97,17 @@ def edges(spec, goal_syms: jax.Array, empty_sym: int) -> Edges:
     """The edges of one (unstacked) spec's path graph; `goal_syms`, `empty_sym` from
     `goal_symbols`."""
     live = ~spec.violation
+    states = jnp.arange(spec.delta.shape[0])
+    jumps = spec.epsilon[:, 0] >= 0  # [S]: the state has an epsilon edge
     sym = jnp.maximum(goal_syms, 0)
     goal_next = spec.delta[:, sym]  # [S, P]
-    goal_ok = (goal_syms >= 0)[None] & live[:, None] & live[goal_next]
+    moves = (goal_next != states[:, None]) | spec.accepting[:, sym] | jumps[:, None]
+    goal_ok = (goal_syms >= 0)[None] & live[:, None] & live[goal_next] & moves
     goal_acc = goal_ok & spec.accepting[:, sym]
     e = max(empty_sym, 0)
     empty_next = spec.delta[:, e]
-    empty_ok = live & live[empty_next] & (empty_sym >= 0)
+    empty_ok = (live & live[empty_next] & (empty_sym >= 0)
+                & ((empty_next != states) | spec.accepting[:, e]))
     empty_acc = empty_ok & spec.accepting[:, e]
     travel_ok = (empty_sym < 0) | live[empty_next]
     eps_next = jnp.maximum(spec.epsilon, 0)

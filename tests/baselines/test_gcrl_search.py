@@ -2,7 +2,8 @@
 
 The brute force builds the path graph from the automaton tables with plain Python loops and
 enumerates every simple prefix and every simple loop (a goal edge to another proposition only
-where the empty label is safe): co-safe specs, the cheapest path into a
+where the empty label is safe; self-loops only accepting ones, or in states with an epsilon
+edge): co-safe specs, the cheapest path into a
 success state; others, `prefix + c + OMEGA * (c + back)` over the accepting edges `x -c-> y`.
 The search must find the same cost from every start state and the same first step.
 """
@@ -37,13 +38,15 @@ def _edges(spec, costs):
             edges = out.setdefault((q, g), [])
             if dead[q]:
                 continue
+            jumps = (eps[q] >= 0).any()
             for p, row in rows.items():
                 t = int(delta[q, row])
                 travel = not dead[delta[q, empty]] or g == p  # crossing empty cells is safe
-                if not dead[t] and travel:
+                loop_ok = t != q or acc[q, row] or jumps  # no idle self-loop goals
+                if not dead[t] and travel and loop_ok:
                     edges.append(((t, p), float(costs[g, p]), bool(acc[q, row]), p, -1))
             t = int(delta[q, empty])
-            if not dead[t]:
+            if not dead[t] and (t != q or acc[q, empty]):
                 edges.append(((t, g), search.HOP, bool(acc[q, empty]), -1, -1))
             for slot, t in enumerate(eps[q]):
                 if t >= 0 and not dead[t]:
