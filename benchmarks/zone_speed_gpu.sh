@@ -9,8 +9,10 @@
 #   bash benchmarks/zone_speed_gpu.sh profile-before OUT   # the same with the settings before
 #   bash benchmarks/zone_speed_gpu.sh variants OUT     # after, with the substep loop unrolled twice,
 #                                                       # then with XLA's Triton GEMMs for every dot
+#   bash benchmarks/zone_speed_gpu.sh cholesky OUT     # after, with the written-out Cholesky
+#                                                       # (Solver small_cholesky), and its Ant profile
 set -u
-MODE=${1:?mode: throughput, profile or variants}
+MODE=${1:?mode: throughput, profile, profile-before, variants or cholesky}
 OUT=${2:?output directory}
 mkdir -p "$OUT"
 T="python benchmarks/env_throughput.py --resets exact --results $OUT/results.md"
@@ -33,6 +35,11 @@ case "$MODE" in
     timeout 115 $T --envs CarLTL0-v0 AntLTL0-v0 --batches 65536 --steps 5 --repeats 1 --solver unroll=2
     XLA_FLAGS=--xla_gpu_triton_gemm_any=True timeout 115 $T --envs CarLTL0-v0 AntLTL0-v0 \
       --batches 65536 --steps 5 --repeats 1
+    ;;
+  cholesky)
+    timeout 120 $T --envs CarLTL0-v0 AntLTL0-v0 --batches 65536 --steps 5 --repeats 1 \
+      --solver small_cholesky=True
+    timeout 110 $P --robots Ant --solver small_cholesky=True --out "$OUT/profile_ant_cholesky.json"
     ;;
   *) echo "unknown mode $MODE" >&2; exit 2 ;;
 esac

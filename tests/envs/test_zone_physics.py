@@ -15,7 +15,7 @@ import pytest
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver, collision_primitive
 
-from specrl_jax.envs.zone import contact_frame, make_zone
+from specrl_jax.envs.zone import contact_frame, make_zone, small_linalg
 from specrl_jax.envs.zone.c_reference import classic_rk4_step
 from specrl_jax.envs.zone.config import DEFAULT_SOLVERS, level_config
 from specrl_jax.envs.zone.models import ROBOTS, Solver, load_model, start_height
@@ -345,10 +345,13 @@ _BOX = """<mujoco><option timestep="0.004" {custom}/><worldbody><geom type="plan
 def test_sensor_free_substeps_and_unroll_give_the_same_steps():
     """Skipping the sensors in the substeps (the default) and unrolling the substep loop give
     bitwise the same physics and sensors as MJX's own `step` with sensors in every substep and
-    a plain loop (a box with a hinged capsule on the floor, 3 env steps)."""
+    a plain loop (a box with a hinged capsule on the floor, 3 env steps); the written-out
+    Cholesky (`small_cholesky`) gives them to float32 rounding."""
     model = mujoco.MjModel.from_xml_string(_BOX.format(custom=""))
     runs = {}
-    for name, kw in (("mjx", dict(substep_sensors=True)), ("ours", dict(unroll=3))):
+    variants = (("mjx", dict(substep_sensors=True)), ("ours", dict(unroll=3)),
+                ("small cholesky", dict(small_cholesky=True)))
+    for name, kw in variants:
         physics = Physics(model, **kw)
         state = jax.jit(physics.init)(jnp.asarray(model.qpos0, jnp.float32))
         step = jax.jit(physics.step)
@@ -359,6 +362,8 @@ def test_sensor_free_substeps_and_unroll_give_the_same_steps():
         runs[name] = np.array(out)
     assert physics.substep_model is not physics.model
     np.testing.assert_array_equal(runs["ours"], runs["mjx"])
+    # written-out Cholesky (small_linalg): the same to float32 rounding, not bitwise
+    np.testing.assert_allclose(runs["small cholesky"], runs["mjx"], rtol=1e-4, atol=1e-5)
     assert np.abs(runs["mjx"][1:, -3:] - runs["mjx"][:-1, -3:]).max() > 1e-3  # sensors change
     accelerometer = runs["mjx"][:, model.nq:model.nq + 3]
     assert np.abs(accelerometer).max() > 1.0  # computed, not left at zero
@@ -397,3 +402,25 @@ def test_solver_contact_cap_drops_no_contact_of_a_live_robot(robot, episodes, st
                 break
             most = max(most, *counts)
     assert most == cap, (robot, most, cap)
+
+
+def test_small_cholesky_replaces_the_library_calls_and_matches_them():
+    """`small_linalg`: factor and solve equal `jax.scipy.linalg`'s to float32 rounding (n = 11
+    and 14, both triangles, vmapped); inside `Physics` with `small_cholesky` the traced step has
+    no library Cholesky or triangular solve left, and the library's are back after tracing."""
+    rng = np.random.default_rng(0)
+    for n in (11, 14):
+        a = rng.normal(size=(3, n, n)).astype(np.float32)
+        a = a @ np.swapaxes(a, 1, 2) + n * np.eye(n, dtype=np.float32)
+        b = rng.normal(size=(3, n)).astype(np.float32)
+        for lower in (False, True):
+            ours = jax.vmap(lambda m, v: small_linalg.cho_solve(
+                small_linalg.cho_factor(m, lower=lower), v))(a, b)
+            np.testing.assert_allclose(ours, np.linalg.solve(a, b[..., None])[..., 0], rtol=1e-4, atol=1e-5)
+    model = mujoco.MjModel.from_xml_string(_BOX.format(custom=""))
+    state = jax.eval_shape(Physics(model).init, jnp.asarray(model.qpos0, jnp.float32))
+    for small in (False, True):
+        step = Physics(model, small_cholesky=small).step
+        jaxpr = str(jax.make_jaxpr(step)(state, jax.ShapeDtypeStruct((1,), jnp.float32)))
+        assert ("cholesky" in jaxpr and "triangular_solve" in jaxpr) != small
+    assert jax.scipy.linalg.cho_factor is not small_linalg.cho_factor

@@ -88,7 +88,8 @@ class ZoneEnv(Env):
             solver = dataclasses.replace(solver, max_contacts=0)
         self.mj_model = load_model(config.robot, solver)
         self.physics = Physics(
-            self.mj_model, config.physics, config.solver.substep_sensors, config.solver.unroll
+            self.mj_model, config.physics, config.solver.substep_sensors, config.solver.unroll,
+            config.solver.small_cholesky,
         )
         self.start_height = start_height(config.robot, self.mj_model)
         self.frame_dt = SUBSTEPS * float(self.mj_model.opt.timestep)

@@ -34,6 +34,8 @@ class Solver:
     touches or not); it changes nothing while at most K contacts penetrate. `substep_sensors`
     False skips the sensors in the physics substeps (only the forward pass after the last one
     feeds the observation; sensors never act on the dynamics). `unroll` unrolls the substep loop.
+    `small_cholesky` factors the mass matrix and the Newton Hessian with written-out arithmetic
+    that XLA fuses instead of library calls (`small_linalg.py`; equal to rounding).
     """
 
     iterations: int = 100
@@ -44,6 +46,7 @@ class Solver:
     max_contacts: int = 0
     substep_sensors: bool = False
     unroll: int = 1
+    small_cholesky: bool = False
 
     def __post_init__(self) -> None:
         if self.cone not in ("pyramidal", "elliptic"):

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import mujoco
 from flax import struct
 
-from specrl_jax.envs.zone import contact_frame
+from specrl_jax.envs.zone import contact_frame, small_linalg
 from specrl_jax.envs.zone.mjx_import import mjx
 
 # isort: split
@@ -87,6 +87,8 @@ class Physics:
             False (default) evaluates them only in the forward pass after the last substep,
             the only one the env reads; the dynamics are the same (backend "jax" only).
         unroll: how many substeps one iteration of the substep loop runs (`lax.scan`).
+        small_cholesky: trace MJX's Cholesky factorisations and solves as written-out
+            arithmetic (`small_linalg.small_cholesky`; backend "jax" only).
 
     Attributes:
         c_contact_frame: whether capsule-plane contacts are traced with MuJoCo C's frame (backend
@@ -100,7 +102,7 @@ class Physics:
 
     def __init__(
         self, model: mujoco.MjModel, backend: str = "jax", substep_sensors: bool = False,
-        unroll: int = 1,
+        unroll: int = 1, small_cholesky: bool = False,
     ):
         if backend not in BACKENDS:
             raise ValueError(f"unknown physics backend {backend!r}; accepted: {BACKENDS}")
@@ -113,6 +115,7 @@ class Physics:
         self.mj_model = model
         self.model = mjx.put_model(model, impl=backend)
         self.unroll = unroll
+        self.small_cholesky = small_cholesky and backend == "jax"
         if backend == "warp":
             # Warp prints a line per world and step when a cap is hit (line-search iterations,
             # contacts); across 65,536 worlds that floods the output. The caps still apply.
@@ -173,9 +176,11 @@ class Physics:
     def advance(self, state: PhysicsState, ctrl: jax.Array, substeps: int) -> PhysicsState:
         """`substeps` steps then a forward pass, one world (any number of `vmap`s around it)."""
         if self.backend == "jax":
-            scope = (contact_frame.c_contact_frame() if self.c_contact_frame
-                     else contextlib.nullcontext())
-            with scope:
+            with contextlib.ExitStack() as scope:
+                if self.c_contact_frame:
+                    scope.enter_context(contact_frame.c_contact_frame())
+                if self.small_cholesky:
+                    scope.enter_context(small_linalg.small_cholesky())
                 return self._advance(self._template, state, ctrl, substeps)
         one = jax.tree.map(lambda x: x[None], (state, ctrl))
         worlds = self._worlds.get(substeps) or self._warp_worlds(substeps)
