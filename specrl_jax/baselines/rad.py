@@ -98,11 +98,14 @@ def network_for(world: Any, encoder: str = "letter") -> RADNetwork:
     return RADNetwork(int(space.shape[0]), encoder, continuous=True)
 
 
-def embedder(encoder_params: Any, graphs: GraphBank, bank: DFABank
+def embedder(encoder_params: Any, graphs: GraphBank, bank: DFABank, num_layers: int = 8
              ) -> Callable[[jax.Array, jax.Array], jax.Array]:
     """`embed(index, q) -> float32[32]`: the frozen embedding of conjunction `index` of `bank`
-    at states `q` int32[N] (one task)."""
-    encoder = RADEncoder()
+    at states `q` int32[N] (one task). Widths are read off the parameters; `num_layers` is the
+    number of rounds of the shared layer (the original's 8)."""
+    p = encoder_params["params"]
+    encoder = RADEncoder(hidden=int(np.shape(p["embed"]["kernel"])[-1]), num_layers=num_layers,
+                         out=int(np.shape(p["readout"]["kernel"])[-1]))
 
     def embed(index, q):
         graph = graph_of(graphs, bank, index, q)
@@ -142,9 +145,11 @@ def training_bank(alphabet: np.ndarray, bank_size: int = DEFAULT_BANK_SIZE, seed
 
 def make_method(world: Any, params: Any, family: str = "letter", bank: DFABank | None = None,
                 bank_size: int = DEFAULT_BANK_SIZE, seed: int = 0,
-                encoder: str | None = None, encoder_params: Any = None) -> RAD:
+                encoder: str | None = None, encoder_params: Any = None,
+                encoder_layers: int = 8) -> RAD:
     """RAD on any single-agent world: a bank of RAD conjunctions (or `bank`), embedded by the
-    frozen encoder `encoder` (default: the shipped one of `family`; or `encoder_params`)."""
+    frozen encoder `encoder` (default: the shipped one of `family`; or `encoder_params` of
+    `encoder_layers` rounds)."""
     alphabet = np.asarray(world.alphabet, bool)
     encoder = family if encoder is None else encoder
     if encoder_params is None:
@@ -153,7 +158,7 @@ def make_method(world: Any, params: Any, family: str = "letter", bank: DFABank |
         bank, graphs = training_bank(alphabet, bank_size, seed)
     else:
         graphs = build_graphs(bank)
-    embed = embedder(encoder_params, graphs, bank)
+    embed = embedder(encoder_params, graphs, bank, encoder_layers)
     kinds = dict(world.obs_kinds)
 
     def observe(obs, state):
@@ -191,13 +196,13 @@ def usable_suites(suites: Sequence[str], log: Callable[[str], None] = print) -> 
 
 
 def make_policy(network: RADNetwork, alphabet: jax.Array, obs_kinds: Mapping[str, str],
-                deterministic: bool = False, encoder_params: Any = None
-                ) -> Callable[..., jax.Array]:
+                deterministic: bool = False, encoder_params: Any = None,
+                encoder_layers: int = 8) -> Callable[..., jax.Array]:
     """RAD's test-time agent: `policy(params, obs, task_state, key) -> action` for
     `specrl_jax.eval.evaluate`. The evaluated bank of compiled specs becomes a bank of DFAs once
     (at trace time); each step embeds the DFA at the state the task loop's automaton state
     maps to. Actions are sampled, or the mode where `deterministic`. The frozen encoder is
-    `network.encoder`'s unless `encoder_params` are given.
+    `network.encoder`'s unless `encoder_params` (of `encoder_layers` rounds) are given.
 
     Raises:
         ValueError (when traced): an evaluated spec is not co-safe.
@@ -212,7 +217,8 @@ def make_policy(network: RADNetwork, alphabet: jax.Array, obs_kinds: Mapping[str
         if spec_bank not in banks:
             with jax.ensure_compile_time_eval():
                 bank, state_map = rad_sampler.bank_of_specs(spec_bank.specs)
-                banks[spec_bank] = (embedder(encoder_params, build_graphs(bank), bank),
+                banks[spec_bank] = (embedder(encoder_params, build_graphs(bank), bank,
+                                             encoder_layers),
                                     jnp.asarray(state_map))
         return banks[spec_bank]
 

@@ -26,10 +26,12 @@ def test_rad_learns_a_tiny_letter_world_and_its_policy_solves_the_compiled_specs
                                                      alphabet=world.alphabet)
                                for f in TINY_FORMULAS])
     bank, _ = rad_sampler.bank_of_specs(compiled)
-    # a frozen, randomly initialised encoder: its embeddings already tell the four tasks apart
+    # a frozen, randomly initialised encoder (small, to compile fast): its embeddings already
+    # tell the four tasks apart
     graph = graph_of(build_graphs(bank), bank, 0, np.zeros(1, np.int32))
-    encoder_params = RADEncoder().init(jax.random.key(2), graph)
-    method = rad.make_method(world, params, bank=bank, encoder_params=encoder_params)
+    encoder_params = RADEncoder(hidden=16, num_layers=2).init(jax.random.key(2), graph)
+    method = rad.make_method(world, params, bank=bank, encoder_params=encoder_params,
+                             encoder_layers=2)
     updates = 50
     cfg = rad.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * updates,
                          update_epochs=4, num_minibatches=2, lr=1e-3)
@@ -40,7 +42,7 @@ def test_rad_learns_a_tiny_letter_world_and_its_policy_solves_the_compiled_specs
     assert first < 0.35 and last > 0.5, (first, last)
 
     policy = rad.make_policy(method.network, world.alphabet, world.obs_kinds,
-                             encoder_params=encoder_params)
+                             encoder_params=encoder_params, encoder_layers=2)
     result = evaluate(policy, (world, params), compiled, seeds=[1], episodes_per_seed=32,
                       policy_params=runner.params)
     success = np.asarray(result.table.success).mean()
