@@ -48,7 +48,8 @@ class ArmState:
 
 
 class ArmEnv(Env):
-    """The Panda arm among coloured spheres on a table (the original's PandaLTLReach*Joints).
+    """The Panda arm among coloured spheres on a table (the original's PandaLTLReach*: joint or
+    end-effector control).
 
     Observation: `ego` float32[6] (mode 0: grasp-target position and linear velocity, world
       frame) or float32[70] (mode 1: per link COM position and xyzw quaternion, 10 links);
