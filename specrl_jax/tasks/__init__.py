@@ -1,7 +1,8 @@
 """The task layer: the one task loop (a world x a spec source), the spec sources (compiled
-automata, reach-avoid sequences, LTL progression), and the policy protocol that evaluation and
+automata, reach-avoid sequences, LTL progression, conjunctions of DFAs), and the policy protocol that evaluation and
 the baselines share."""
 
+from specrl_jax.tasks.dfa_source import DFASource, DFATask
 from specrl_jax.tasks.loop import TaskEnv, TaskState, reward_progress
 from specrl_jax.tasks.policy import StatefulPolicy, as_stateful, random_policy, split_action
 from specrl_jax.tasks.progression import ProgressionBank, ProgressionSource, ProgressionTask
@@ -18,6 +19,8 @@ from specrl_jax.tasks.sources import (
 __all__ = [
     "AutomatonSource",
     "AutomatonTask",
+    "DFASource",
+    "DFATask",
     "Events",
     "ProgressionBank",
     "ProgressionSource",
