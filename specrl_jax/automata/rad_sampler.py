@@ -274,7 +274,8 @@ def build_bank(cdfas: Sequence[Sequence[DFA]], alphabet: np.ndarray,
     if any(len(c) > n_max for c in cdfas) or any(d.num_states > s_max for c in cdfas for d in c):
         raise ValueError(f"a conjunction exceeds max_conjuncts={n_max} or max_states={s_max}")
     k = len(cdfas)
-    delta = np.tile(np.arange(s_max, dtype=np.int32)[None, None, :, None], (k, n_max, 1, num_symbols))
+    stay = np.arange(s_max, dtype=np.int32)[None, None, :, None]
+    delta = np.tile(stay, (k, n_max, 1, num_symbols))
     accepting = np.zeros((k, n_max, s_max), bool)
     live = np.zeros((k, n_max, s_max), bool)
     reach = np.tile(np.eye(s_max, dtype=bool), (k, n_max, 1, 1))
