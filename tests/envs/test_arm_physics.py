@@ -157,3 +157,13 @@ def test_pruned_contact_pairs_cannot_touch():
              for a, b in zip(model.pair_geom1, model.pair_geom2)}
     assert {"link3", "table"} not in pairs and {"link4", "floor"} not in pairs
     assert {"link4", "table"} in pairs and {"link5", "floor"} in pairs and len(pairs) == 13
+
+
+def test_spd_inverse_equals_the_library_inverse():
+    from specrl_jax.envs.arm.physics import spd_inverse
+
+    rng = np.random.default_rng(6)
+    a = rng.normal(size=(3, 7, 7))
+    mass = a @ np.swapaxes(a, 1, 2) + 0.1 * np.eye(7)
+    ours = np.asarray(jax.jit(jax.vmap(spd_inverse))(jnp.asarray(mass, jnp.float32)))
+    np.testing.assert_allclose(ours @ mass, np.broadcast_to(np.eye(7), (3, 7, 7)), atol=2e-3)

@@ -18,6 +18,7 @@ import numpy as np
 from flax import struct
 
 from specrl_jax.envs.arm.kinematics import ChainKinematics
+from specrl_jax.envs.zone import small_linalg
 from specrl_jax.envs.zone.mjx_import import mjx
 
 SUBSTEPS = 20
@@ -42,6 +43,14 @@ class PhysicsState:
     qacc_warmstart: jax.Array
 
 
+def spd_inverse(mass: jax.Array) -> jax.Array:
+    """float[N, N]: the inverse of a small symmetric positive definite matrix, through a
+    Cholesky factor written out as arithmetic (`zone/small_linalg.py`): under `vmap` on a GPU it
+    fuses with its neighbours, where a library call would not."""
+    factor = small_linalg.cho_factor(mass, lower=True)
+    return small_linalg.cho_solve(factor, jnp.eye(mass.shape[-1], dtype=mass.dtype))
+
+
 def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: jax.Array,
                  target: jax.Array, force_limit: jax.Array, h: float,
                  sweeps: int = PGS_SWEEPS) -> jax.Array:
@@ -57,7 +66,7 @@ def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: 
     Returns the torques `tau`, `|tau_i| <= force_limit_i`, such that each unsaturated joint
     reaches `v* = MOTOR_RATE (target - q)` after the substep (given the saturated ones).
     """
-    inverse = jnp.linalg.inv(mass)
+    inverse = spd_inverse(mass)
     want = (MOTOR_RATE * (target - qpos) - qvel) / h - free_accel  # needed extra acceleration
     tau = jnp.clip(mass @ want, -force_limit, force_limit)
     diag = jnp.diagonal(inverse)
@@ -108,7 +117,7 @@ class Physics:
         m = self.model
         data = mjx.fwd_velocity(m, self.position_stage(data))
         mass = mjx.full_m(m, data)
-        free_accel = jnp.linalg.solve(mass, data.qfrc_passive - data.qfrc_bias)
+        free_accel = spd_inverse(mass) @ (data.qfrc_passive - data.qfrc_bias)
         h = float(self.mj_model.opt.timestep)
         tau = motor_torque(mass, free_accel, data.qvel, data.qpos, target,
                            jnp.asarray(self.force_limit), h)
@@ -125,8 +134,10 @@ class Physics:
         data = self._template.replace(
             qpos=state.qpos, qvel=state.qvel, qacc_warmstart=state.qacc_warmstart
         )
-        data = jax.lax.fori_loop(0, self.substeps, lambda _, d: self.substep(d, target), data)
+        # MJX's own Cholesky factorisations (mass matrix, Newton Hessian), written out too
+        with small_linalg.small_cholesky():
+            data = jax.lax.fori_loop(0, self.substeps, lambda _, d: self.substep(d, target), data)
         return PhysicsState(qpos=data.qpos, qvel=data.qvel, qacc_warmstart=data.qacc_warmstart)
 
 
-__all__ = ["MOTOR_RATE", "SUBSTEPS", "Physics", "PhysicsState", "motor_torque"]
+__all__ = ["MOTOR_RATE", "SUBSTEPS", "Physics", "PhysicsState", "motor_torque", "spd_inverse"]
