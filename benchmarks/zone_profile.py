@@ -148,7 +148,8 @@ def _start_states(env, batch: int, rng: np.random.Generator):
     return ZoneState(
         physics=PhysicsState(qpos=qpos, qvel=zeros(nv), qacc_warmstart=zeros(nv),
                              agent_pos=zeros(3), agent_mat=zeros(3, 3), sensordata=zeros(nsensor)),
-        start_qpos=qpos, zone_xy=jnp.asarray(rng.uniform(-2, 2, (batch, num_zones, 2)), jnp.float32),
+        start_qpos=qpos,
+        zone_xy=jnp.asarray(rng.uniform(-2, 2, (batch, num_zones, 2)), jnp.float32),
         zone_direction=jnp.zeros((batch, num_zones)), zone_phase=jnp.zeros((batch, num_zones)),
         time=jnp.zeros(batch, jnp.int32),
     )
