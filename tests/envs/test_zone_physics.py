@@ -334,7 +334,7 @@ def test_mjx_ant_tracks_mujoco_c():
     assert (worst < [1e-4, 1e-3, 2e-4, 5e-4]).all(), worst
 
 
-_BOX = """<mujoco><option timestep="0.004" {custom}/><worldbody><geom type="plane" size="2 2 .1"/>
+_BOX = """<mujoco><option timestep="0.004"/><worldbody><geom type="plane" size="2 2 .1"/>
 <body pos="0 0 0.05"><freejoint/><geom type="box" size=".05 .05 .05"/><site name="s"/>
 <body pos="0.1 0 0"><joint name="hinge" axis="0 1 0" range="-1 1" limited="true"/>
 <geom type="capsule" fromto="0 0 0 0.1 0 0" size=".02"/></body></body></worldbody>
@@ -345,13 +345,10 @@ _BOX = """<mujoco><option timestep="0.004" {custom}/><worldbody><geom type="plan
 def test_sensor_free_substeps_and_unroll_give_the_same_steps():
     """Skipping the sensors in the substeps (the default) and unrolling the substep loop give
     bitwise the same physics and sensors as MJX's own `step` with sensors in every substep and
-    a plain loop (a box with a hinged capsule on the floor, 3 env steps); the written-out
-    Cholesky (`small_cholesky`) gives them to float32 rounding."""
-    model = mujoco.MjModel.from_xml_string(_BOX.format(custom=""))
+    a plain loop (a box with a hinged capsule on the floor, 3 env steps)."""
+    model = mujoco.MjModel.from_xml_string(_BOX)
     runs = {}
-    variants = (("mjx", dict(substep_sensors=True)), ("ours", dict(unroll=3)),
-                ("small cholesky", dict(small_cholesky=True)))
-    for name, kw in variants:
+    for name, kw in (("mjx", dict(substep_sensors=True)), ("ours", dict(unroll=3))):
         physics = Physics(model, **kw)
         state = jax.jit(physics.init)(jnp.asarray(model.qpos0, jnp.float32))
         step = jax.jit(physics.step)
@@ -362,8 +359,6 @@ def test_sensor_free_substeps_and_unroll_give_the_same_steps():
         runs[name] = np.array(out)
     assert physics.substep_model is not physics.model
     np.testing.assert_array_equal(runs["ours"], runs["mjx"])
-    # written-out Cholesky (small_linalg): the same to float32 rounding, not bitwise
-    np.testing.assert_allclose(runs["small cholesky"], runs["mjx"], rtol=1e-4, atol=1e-5)
     assert np.abs(runs["mjx"][1:, -3:] - runs["mjx"][:-1, -3:]).max() > 1e-3  # sensors change
     accelerometer = runs["mjx"][:, model.nq:model.nq + 3]
     assert np.abs(accelerometer).max() > 1.0  # computed, not left at zero
@@ -416,8 +411,9 @@ def test_small_cholesky_replaces_the_library_calls_and_matches_them():
         for lower in (False, True):
             ours = jax.vmap(lambda m, v: small_linalg.cho_solve(
                 small_linalg.cho_factor(m, lower=lower), v))(a, b)
-            np.testing.assert_allclose(ours, np.linalg.solve(a, b[..., None])[..., 0], rtol=1e-4, atol=1e-5)
-    model = mujoco.MjModel.from_xml_string(_BOX.format(custom=""))
+            expected = np.linalg.solve(a, b[..., None])[..., 0]
+            np.testing.assert_allclose(ours, expected, rtol=1e-4, atol=1e-5)
+    model = mujoco.MjModel.from_xml_string(_BOX)
     state = jax.eval_shape(Physics(model).init, jnp.asarray(model.qpos0, jnp.float32))
     for small in (False, True):
         step = Physics(model, small_cholesky=small).step
