@@ -55,7 +55,7 @@ import jaxlib
 import mujoco
 import numpy as np
 
-from specrl_jax.envs.zone import contact_frame, make_zone
+from specrl_jax.envs.zone import contact_frame, make_zone, small_linalg
 from specrl_jax.envs.zone.config import DEFAULT_SOLVERS, level_config
 from specrl_jax.envs.zone.env import ZoneState
 from specrl_jax.envs.zone.physics import PhysicsState
@@ -161,8 +161,14 @@ def profile(robot: str, batch: int, warm: int, loops: int, repeats: int,
     solver_cfg = dataclasses.replace(DEFAULT_SOLVERS[robot], **overrides)
     env, params = make_zone(level_config(robot, 0, solver=solver_cfg))
     physics = env.physics
-    scope = (contact_frame.c_contact_frame if physics.c_contact_frame
-             else contextlib.nullcontext)
+    @contextlib.contextmanager
+    def scope():  # what `Physics.advance` opens around its tracing
+        with contextlib.ExitStack() as stack:
+            if physics.c_contact_frame:
+                stack.enter_context(contact_frame.c_contact_frame())
+            if physics.small_cholesky:
+                stack.enter_context(small_linalg.small_cholesky())
+            yield
     rows: dict[str, dict[str, float]] = {}
     key_reset, key_act = jax.random.split(jax.random.key(0))
     if with_reset:
