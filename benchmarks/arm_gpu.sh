@@ -14,7 +14,8 @@ part() {
   shift
   echo "== $(date +%T) (limit ${limit}s) $*"
   timeout "$limit" python "$@"
-  echo "== $(date +%T) exit $?"
+  local code=$?  # 124: the part hit its time limit
+  echo "== $(date +%T) exit $code"
 }
 nvidia-smi --query-gpu=name,driver_version --format=csv,noheader
 python -c "import jax, mujoco; print('jax', jax.__version__, 'mujoco', mujoco.__version__, jax.devices())"
