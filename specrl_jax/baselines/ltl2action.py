@@ -24,7 +24,13 @@ import numpy as np
 
 from specrl_jax import automata, specs
 from specrl_jax.baselines.encoders import ImageCNN, check_kinds, obs_parts
-from specrl_jax.baselines.ppo.networks import Categorical, GaussianHead, LetterCNN, PolicyOutput
+from specrl_jax.baselines.ppo.networks import (
+    Categorical,
+    GaussianHead,
+    LetterCNN,
+    PolicyOutput,
+    unit_columns,
+)
 from specrl_jax.baselines.ppo.train import PPOConfig, world_config
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.tasks import StatefulPolicy, TaskEnv
@@ -48,15 +54,31 @@ DEFAULT_SUITES = ("letter/finite/ind", "letter/finite/ood", "letter/infinite/rsp
                   "zone/infinite/rsp", "zone/infinite/rec", "zone/infinite/per")
 
 
-def unit_rows(key: jax.Array, shape: Sequence[int], dtype: Any = jnp.float32) -> jax.Array:
-    """The original's `init_params`: N(0, 1) weights, each output unit's vector (a column of a
-    flax kernel [in, out]) scaled to unit L2 norm."""
-    w = jax.random.normal(key, shape, dtype)
-    return w / jnp.linalg.norm(w, axis=0, keepdims=True)
-
-
 def _dense(features: int) -> nn.Dense:
-    return nn.Dense(features, kernel_init=unit_rows)
+    return nn.Dense(features, kernel_init=unit_columns)
+
+
+def embedding_actor_critic(parts: dict, embedding: jax.Array, num_actions: int,
+                           continuous: bool) -> PolicyOutput:
+    """LTL2Action's network body, shared with RAD-Embeddings; call it inside a compact module.
+    Observation encoders by kind (grid CNN, vector MLP [128, 64] ReLU, image CNN) concatenated
+    with the spec `embedding`; actor [64, 64, 64] ReLU then logits (or a Gaussian with Tanh mean
+    and state-dependent std); critic [64, 64] Tanh. Dense layers start as the original's."""
+    out = []
+    if "grid" in parts:
+        out.append(LetterCNN()(parts["grid"]))
+    if "vector" in parts:
+        out.append(nn.relu(_dense(64)(nn.relu(_dense(128)(parts["vector"])))))
+    if "image" in parts:
+        out.append(ImageCNN()(parts["image"]))
+    emb = jnp.concatenate([*out, embedding], axis=-1)
+    hidden = emb
+    for width in (64, 64, 64):
+        hidden = nn.relu(_dense(width)(hidden))
+    pi = GaussianHead(num_actions)(hidden) if continuous else Categorical(_dense(num_actions)(hidden))
+    value = _dense(1)(nn.tanh(_dense(64)(nn.tanh(_dense(64)(emb)))))[..., 0]
+    zeros = jnp.zeros_like(value)
+    return PolicyOutput(pi, value, zeros, zeros)
 
 
 class FormulaObs(NamedTuple):
@@ -130,26 +152,8 @@ class LTL2ActionNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, obs: FormulaObs) -> PolicyOutput:
-        parts, out = obs.parts, []
-        if "grid" in parts:
-            out.append(LetterCNN()(parts["grid"]))
-        if "vector" in parts:
-            out.append(nn.relu(_dense(64)(nn.relu(_dense(128)(parts["vector"])))))
-        if "image" in parts:
-            out.append(ImageCNN()(parts["image"]))
-        encoder = RGCNEncoder(num_features(len(self.propositions)))
-        formula = encoder(obs.tokens, obs.parent, obs.edge)
-        emb = jnp.concatenate([*out, formula], axis=-1)
-        hidden = emb
-        for width in (64, 64, 64):
-            hidden = nn.relu(_dense(width)(hidden))
-        if self.continuous:
-            pi = GaussianHead(self.num_actions)(hidden)
-        else:
-            pi = Categorical(_dense(self.num_actions)(hidden))
-        value = _dense(1)(nn.tanh(_dense(64)(nn.tanh(_dense(64)(emb)))))[..., 0]
-        zeros = jnp.zeros_like(value)
-        return PolicyOutput(pi, value, zeros, zeros)
+        formula = RGCNEncoder(num_features(len(self.propositions)))(obs.tokens, obs.parent, obs.edge)
+        return embedding_actor_critic(obs.parts, formula, self.num_actions, self.continuous)
 
 
 def network_for(world: Any) -> LTL2ActionNetwork:

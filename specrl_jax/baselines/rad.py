@@ -34,11 +34,11 @@ from specrl_jax import specs
 from specrl_jax.automata import rad_sampler
 from specrl_jax.automata.rad_sampler import DFABank
 from specrl_jax.baselines import rad_pretrain
-from specrl_jax.baselines.encoders import ImageCNN, check_kinds, obs_parts
-from specrl_jax.baselines.ppo.networks import Categorical, GaussianHead, LetterCNN, PolicyOutput
+from specrl_jax.baselines.encoders import check_kinds, obs_parts
+from specrl_jax.baselines.ltl2action import embedding_actor_critic
+from specrl_jax.baselines.ppo.networks import PolicyOutput
 from specrl_jax.baselines.ppo.train import PPOConfig, world_config
 from specrl_jax.baselines.rad_encoder import GraphBank, RADEncoder, build_graphs, graph_of
-from specrl_jax.baselines.rad_encoder import unit_columns
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.tasks import TaskEnv
 from specrl_jax.tasks.dfa_source import DFASource
@@ -54,10 +54,6 @@ class RADObs(NamedTuple):
     embedding: jax.Array
 
 
-def _dense(features: int) -> nn.Dense:
-    return nn.Dense(features, kernel_init=unit_columns)
-
-
 class RADNetwork(nn.Module):
     """Observation encoder and the frozen DFA embedding, concatenated; actor [64, 64, 64] ReLU
     then logits (or a Gaussian with Tanh mean and state-dependent std); critic [64, 64] Tanh.
@@ -69,24 +65,7 @@ class RADNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, obs: RADObs) -> PolicyOutput:
-        parts, out = obs.parts, []
-        if "grid" in parts:
-            out.append(LetterCNN()(parts["grid"]))
-        if "vector" in parts:
-            out.append(nn.relu(_dense(64)(nn.relu(_dense(128)(parts["vector"])))))
-        if "image" in parts:
-            out.append(ImageCNN()(parts["image"]))
-        emb = jnp.concatenate([*out, obs.embedding], axis=-1)
-        hidden = emb
-        for width in (64, 64, 64):
-            hidden = nn.relu(_dense(width)(hidden))
-        if self.continuous:
-            pi = GaussianHead(self.num_actions)(hidden)
-        else:
-            pi = Categorical(_dense(self.num_actions)(hidden))
-        value = _dense(1)(nn.tanh(_dense(64)(nn.tanh(_dense(64)(emb)))))[..., 0]
-        zeros = jnp.zeros_like(value)
-        return PolicyOutput(pi, value, zeros, zeros)
+        return embedding_actor_critic(obs.parts, obs.embedding, self.num_actions, self.continuous)
 
 
 def network_for(world: Any, encoder: str = "letter") -> RADNetwork:

@@ -40,6 +40,7 @@ import numpy as np
 from flax import struct
 
 from specrl_jax.automata.rad_sampler import DFABank
+from specrl_jax.baselines.ppo.networks import unit_columns
 
 NUM_FLAGS = 6
 AND, INIT, NORMAL, TEMP, ACCEPTING, REJECTING = range(-6, 0)
@@ -199,13 +200,6 @@ def graph_of(graphs: GraphBank, bank: DFABank, index: jax.Array, q: jax.Array) -
     neighbour_mask = (neighbours >= 0) & node_mask[jnp.maximum(neighbours, 0)] & node_mask[own]
     return Graph(features * node_mask[:, None], node_mask, jnp.maximum(neighbours, 0),
                  neighbour_mask)
-
-
-def unit_columns(key: jax.Array, shape: Sequence[int], dtype: Any = jnp.float32) -> jax.Array:
-    """The original's `init_params` for linear layers: N(0, 1) weights with each output unit's
-    weight vector scaled to unit L2 norm."""
-    w = jax.random.normal(key, shape, dtype)
-    return w / jnp.linalg.norm(w, axis=0, keepdims=True)
 
 
 def _gather_nodes(src: jax.Array, ids: jax.Array) -> jax.Array:

@@ -27,7 +27,7 @@ from flax import serialization, struct
 
 from specrl_jax.automata import rad_sampler
 from specrl_jax.automata.rad_sampler import DFABank
-from specrl_jax.baselines.ppo.networks import Categorical, PolicyOutput
+from specrl_jax.baselines.ppo.networks import Categorical, PolicyOutput, unit_columns
 from specrl_jax.baselines.ppo.train import PPOConfig
 from specrl_jax.baselines.rad_encoder import (
     NUM_FLAGS,
@@ -36,7 +36,6 @@ from specrl_jax.baselines.rad_encoder import (
     build_graphs,
     graph_of,
     num_features,
-    unit_columns,
 )
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.envs.spaces import Discrete

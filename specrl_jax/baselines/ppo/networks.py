@@ -25,6 +25,13 @@ ACTIVATIONS: dict[str, Activation] = {
 }
 
 
+def unit_columns(key: jax.Array, shape: Sequence[int], dtype: jnp.dtype = jnp.float32) -> jax.Array:
+    """LTL2Action's and RAD-Embeddings' `init_params` for linear layers: N(0, 1) weights with each
+    output unit's weight vector (a column of a flax kernel [in, out]) scaled to unit L2 norm."""
+    w = jax.random.normal(key, shape, dtype)
+    return w / jnp.linalg.norm(w, axis=0, keepdims=True)
+
+
 def dense(features: int, gain: float = 1.0) -> nn.Dense:
     return nn.Dense(features, kernel_init=nn.initializers.orthogonal(gain))
 
