@@ -9,7 +9,6 @@ Buchi-accepting transitions and no epsilon steps.
 
 from __future__ import annotations
 
-import hashlib
 from typing import Any
 
 import jax
@@ -19,26 +18,15 @@ from flax import struct
 
 from specrl_jax import automata
 from specrl_jax.automata.rad_sampler import DFABank, advance, status
-from specrl_jax.tasks.sources import Events
+from specrl_jax.tasks.sources import ByContent, Events
 
 
-class DFABankRef:
+class DFABankRef(ByContent):
     """A `DFABank` as static metadata of a task (compares by content, like `SpecBank`)."""
 
-    def __init__(self, bank: DFABank):
-        self.bank = bank
-        digest = hashlib.sha256()
-        for leaf in jax.tree.leaves(bank):
-            leaf = np.asarray(leaf)
-            digest.update(f"{leaf.dtype}{leaf.shape}".encode())
-            digest.update(leaf.tobytes())
-        self.digest = digest.hexdigest()
-
-    def __hash__(self) -> int:
-        return hash(self.digest)
-
-    def __eq__(self, other: object) -> bool:
-        return isinstance(other, DFABankRef) and self.digest == other.digest
+    @property
+    def bank(self) -> DFABank:
+        return self.tree
 
 
 @struct.dataclass

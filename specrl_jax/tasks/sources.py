@@ -45,17 +45,14 @@ class Events(NamedTuple):
     violation: jax.Array
 
 
-class SpecBank:
-    """The stacked specs that automaton tasks point into by `spec_index` (static metadata).
+class ByContent:
+    """Arrays carried as static metadata of a task (`struct.field(pytree_node=False)`), compared
+    by content (a digest of every leaf): equal contents share compilations and mix in a batch."""
 
-    Banks compare by content (a digest of every leaf), so tasks of two sources over equal specs
-    mix and share compilations.
-    """
-
-    def __init__(self, specs: Any):
-        self.specs = specs
+    def __init__(self, tree: Any):
+        self.tree = tree
         digest = hashlib.sha256()
-        for leaf in jax.tree.leaves(specs):
+        for leaf in jax.tree.leaves(tree):
             leaf = np.asarray(leaf)
             digest.update(f"{leaf.dtype}{leaf.shape}".encode())
             digest.update(leaf.tobytes())
@@ -65,7 +62,19 @@ class SpecBank:
         return hash(self.digest)
 
     def __eq__(self, other: object) -> bool:
-        return isinstance(other, SpecBank) and self.digest == other.digest
+        return type(other) is type(self) and self.digest == other.digest
+
+
+class SpecBank(ByContent):
+    """The stacked specs that automaton tasks point into by `spec_index` (static metadata).
+
+    Banks compare by content (a digest of every leaf), so tasks of two sources over equal specs
+    mix and share compilations.
+    """
+
+    @property
+    def specs(self) -> Any:
+        return self.tree
 
 
 @struct.dataclass
