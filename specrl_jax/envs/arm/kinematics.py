@@ -110,22 +110,16 @@ class ChainKinematics:
         ximat = jnp.einsum("bij,bjk->bik", xmat, inertial)
         data = data.replace(xpos=xpos, xquat=xquat, xmat=xmat, xanchor=xanchor, xaxis=xaxis,
                             xipos=xipos, ximat=ximat)
+        def attached(body, pos, mat):  # frames fixed on bodies: world positions and rotations
+            return (xpos[body] + jnp.einsum("nij,nj->ni", xmat[body], jnp.asarray(pos, jnp.float32)),
+                    jnp.einsum("nij,njk->nik", xmat[body], jnp.asarray(np.stack(mat), jnp.float32)))
+
         if m.ngeom:
-            gb = m.geom_bodyid
-            data = data.replace(
-                geom_xpos=xpos[gb] + jnp.einsum("gij,gj->gi", xmat[gb],
-                                                jnp.asarray(m.geom_pos, jnp.float32)),
-                geom_xmat=jnp.einsum("gij,gjk->gik", xmat[gb],
-                                     jnp.asarray(np.stack(self._geom_mat), jnp.float32)),
-            )
+            geom_xpos, geom_xmat = attached(m.geom_bodyid, m.geom_pos, self._geom_mat)
+            data = data.replace(geom_xpos=geom_xpos, geom_xmat=geom_xmat)
         if m.nsite:
-            sb = m.site_bodyid
-            data = data.replace(
-                site_xpos=xpos[sb] + jnp.einsum("sij,sj->si", xmat[sb],
-                                                jnp.asarray(m.site_pos, jnp.float32)),
-                site_xmat=jnp.einsum("sij,sjk->sik", xmat[sb],
-                                     jnp.asarray(np.stack(self._site_mat), jnp.float32)),
-            )
+            site_xpos, site_xmat = attached(m.site_bodyid, m.site_pos, self._site_mat)
+            data = data.replace(site_xpos=site_xpos, site_xmat=site_xmat)
         return data
 
 
