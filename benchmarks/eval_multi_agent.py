@@ -112,18 +112,12 @@ def main() -> None:
             method, RESULTS / f"pointltl0_{method}_params_seed1.msgpack")
         policy = make_coordinator(builders[method](network, single.obs_kinds), env)
         start = time.perf_counter()
-        finite = [n for n in args.suites if specs.suite_info(n).is_finite]
-        infinite = [n for n in args.suites if n not in finite]
-        suite_results = []
-        for names, horizon in ((finite, None), (infinite, args.infinite_horizon)):
-            if not names:
-                continue
-            with warnings.catch_warnings():  # three specs exceed the candidate caps (fidelity.md)
-                warnings.filterwarnings("ignore", message=".*candidate sequences dropped")
-                suite_results += evaluate_suites(
-                    policy, args.env, world, env_params, names, args.episodes,
-                    seeds=range(1, args.seeds + 1), policy_params=params, horizon=horizon,
-                    label=f"{method} + coordinator")
+        with warnings.catch_warnings():  # three specs exceed the candidate caps (fidelity.md)
+            warnings.filterwarnings("ignore", message=".*candidate sequences dropped")
+            suite_results = evaluate_suites(
+                policy, args.env, world, env_params, args.suites, args.episodes,
+                seeds=range(1, args.seeds + 1), policy_params=params,
+                infinite_horizon=args.infinite_horizon, label=f"{method} + coordinator")
         timing[method] = time.perf_counter() - start
         for result in suite_results:
             m = result.suite_metrics()

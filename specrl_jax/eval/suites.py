@@ -26,11 +26,16 @@ from specrl_jax.eval.report import SuiteResult
 from specrl_jax.tasks import TaskEnv
 
 
-def suite_horizon(name: str, finite_horizon: int, horizon: int | None = None) -> int:
-    """Episode length for suite `name` in a world whose finite horizon is `finite_horizon`."""
+def suite_horizon(name: str, finite_horizon: int, horizon: int | None = None,
+                  infinite_horizon: int | None = None) -> int:
+    """Episode length for suite `name` in a world whose finite horizon is `finite_horizon`;
+    `horizon` overrides every suite's, `infinite_horizon` only the infinite suites'."""
     if horizon is not None:
         return int(horizon)
-    return int(finite_horizon) * specs.suite_info(name).horizon_factor
+    info = specs.suite_info(name)
+    if infinite_horizon is not None and not info.is_finite:
+        return int(infinite_horizon)
+    return int(finite_horizon) * info.horizon_factor
 
 
 def check_suites(names: Sequence[str], env: Any) -> None:
@@ -56,7 +61,8 @@ def originals(formulas: Sequence[str], env: Any) -> Any:
 
 def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Sequence[str],
                     episodes: int, seeds: Sequence[int], policy_params: Any = None,
-                    params_per_seed: bool = False, horizon: int | None = None, label: str = "",
+                    params_per_seed: bool = False, horizon: int | None = None,
+                    infinite_horizon: int | None = None, label: str = "",
                     log: Callable[[str], None] = print) -> list[SuiteResult]:
     """Evaluate `policy` on every suite; one compiled evaluator per distinct horizon.
 
@@ -66,7 +72,7 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
         suites: suite names; episodes: per (seed, spec); seeds: integer seeds.
         policy_params: passed to the policy; with `params_per_seed`, a pytree with a leading
             axis of `len(seeds)` whose entry i serves seed i (one trained run per seed).
-        horizon: overrides every suite's horizon.
+        horizon: overrides every suite's horizon; infinite_horizon: only the infinite suites'.
         label: the method name in the reports.
 
     Returns:
@@ -76,7 +82,7 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
     seeds = check_seeds(seeds)
     by_horizon: dict[int, list[str]] = {}
     for name in suites:
-        by_horizon.setdefault(suite_horizon(name, params.max_steps, horizon), []).append(name)
+        by_horizon.setdefault(suite_horizon(name, params.max_steps, horizon, infinite_horizon), []).append(name)
     seed_array = jnp.asarray(seeds, jnp.uint32)
     groups = []  # (horizon, formulas, {suite: spec indices}, compiled specs, evaluator)
     for steps, names in by_horizon.items():

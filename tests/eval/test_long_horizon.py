@@ -18,6 +18,8 @@ def test_suite_horizons_are_ten_finite_horizons_for_infinite_suites():
     assert suite_horizon("letter/infinite/rec", 75) == 750
     assert suite_horizon("zone/infinite/per", 1000) == 10_000
     assert suite_horizon("letter/infinite/rec", 75, horizon=120) == 120
+    assert suite_horizon("letter/infinite/rec", 75, infinite_horizon=120) == 120
+    assert suite_horizon("letter/finite/ind", 75, infinite_horizon=120) == 75
 
 
 def test_accepting_visits_over_a_long_episode_match_a_hand_count():
