@@ -1,7 +1,10 @@
-"""GPU-scale checks of the arm world: no NaN over long saturated rollouts, and the per-joint
-tracking gains under uniform random actions at a large batch (the reference's measurement).
+"""GPU-scale checks of the arm world: no NaN over long saturated rollouts, the per-joint
+tracking gains under uniform random actions at a large batch (the reference's measurement), and
+where the compile time goes (`--parts compile`: each piece of the env step lowered and compiled
+alone, with the persistent compilation cache off).
 
     python benchmarks/arm_checks.py --batch 4096 --steps 1000 --out arm_checks.json
+    python benchmarks/arm_checks.py --parts compile --compile-batch 4 --out arm_compile.json
 
 Each part prints a line when it starts and as it progresses, and the JSON file is rewritten after
 every part, so a run cut short by a time limit still leaves what it measured.
@@ -67,7 +70,7 @@ def saturated_rollout(env_id: str, num_envs: int, num_steps: int, bank: int,
 def tracking_gains(num_envs: int, num_steps: int) -> dict:
     """Least squares of dq on 0.05 a_t and 0.05 a_{t-1} per joint, random uniform actions from
     the neutral pose, table contacts on (the registered model)."""
-    env, params = specrl_jax.make("PandaLTLReach0Joints-v0")
+    env, _ = specrl_jax.make("PandaLTLReach0Joints-v0")
     physics = env.physics
     q0 = jnp.tile(jnp.asarray(NEUTRAL_QPOS, jnp.float32), (num_envs, 1))
 
@@ -95,6 +98,69 @@ def tracking_gains(num_envs: int, num_steps: int) -> dict:
     return out
 
 
+def compile_pieces(num_envs: int, num_steps: int, pieces: list[str] | None = None) -> dict:
+    """Seconds to lower and to compile each piece of the arm's programs at `num_envs` arms, and
+    the size of its StableHLO (operations). The pieces nest: `rollout_*` is what
+    `env_throughput.py` compiles (a scan of `num_steps` auto-resetting steps: physics step,
+    observation, and the reset twice, once per branch of `BatchedAutoReset`)."""
+    import env_throughput  # beside this script
+
+    from specrl_jax.envs.arm import layout as layout_lib
+
+    jax.config.update("jax_enable_compilation_cache", False)
+    env0, params0 = specrl_jax.make("PandaLTLReach0Joints-v0")
+    env1, _ = specrl_jax.make("PandaLTLReach1Joints-v0")
+    env_ee, _ = specrl_jax.make("PandaLTLReach0-v0")
+    key = jax.random.key(0)
+    keys = jax.random.split(key, num_envs)
+    physics = env0.physics
+    phys = jax.vmap(physics.init)(jnp.tile(jnp.asarray(NEUTRAL_QPOS, jnp.float32), (num_envs, 1)))
+    bank = jnp.tile(jnp.asarray([[0.1 * z, 0.2, 0.3] for z in range(8)], jnp.float32), (16, 1, 1))
+    bank_params = params0.replace(layout_bank=bank)
+
+    def states(env):
+        _, state = jax.vmap(env.reset, in_axes=(0, None))(keys, bank_params)
+        return state
+
+    def rollout(env, params):
+        batched = batch_env(env, num_envs)
+        _, state = jax.jit(batched.reset)(key, params)
+        run = env_throughput.make_rollout(batched, params, num_steps)
+        return run, (key, state)
+
+    data = jax.vmap(physics.data)(phys)
+    table = {
+        "kinematics": lambda: (jax.vmap(physics.data), (phys,)),
+        "substep": lambda: (jax.vmap(physics.substep), (data, phys.qpos)),
+        "physics_step": lambda: (jax.vmap(physics.step), (phys, phys.qpos)),
+        "observe_mode0": lambda: (jax.vmap(env0._observe), (states(env0),)),
+        "observe_mode1": lambda: (jax.vmap(env1._observe), (states(env1),)),
+        "ik": lambda: (jax.vmap(env_ee.ik.joint_targets), (phys.qpos, phys.qpos[:, :3])),
+        "keepout_test": lambda: (jax.vmap(lambda c: layout_lib.keepout_ok(c, env0.config)),
+                                 (bank[0],)),
+        "exact_reset": lambda: (jax.vmap(env0.reset, in_axes=(0, None)), (keys, params0)),
+        "layout_bank_256": lambda: (lambda k: layout_lib.sample_bank(k, env0.config, 256), (key,)),
+        "step_mode0": lambda: (jax.vmap(env0.step, in_axes=(0, 0, 0, None)),
+                               (keys, states(env0), phys.qpos, bank_params)),
+        "rollout_bank_mode0": lambda: rollout(env0, bank_params),
+        "rollout_bank_mode1": lambda: rollout(env1, bank_params),
+        "rollout_exact_mode0": lambda: rollout(env0, params0),
+    }
+    out = {}
+    for name in pieces or table:
+        function, args = table[name]()
+        start = time.perf_counter()
+        lowered = (function if hasattr(function, "lower") else jax.jit(function)).lower(*args)
+        lower_s = time.perf_counter() - start
+        text = lowered.as_text()
+        start = time.perf_counter()
+        lowered.compile()
+        out[name] = {"lower_s": round(lower_s, 2), "compile_s": round(time.perf_counter() - start, 2),
+                     "stablehlo_ops": sum(line.lstrip().startswith("%") for line in text.splitlines())}
+        log(f"compile {name}: {json.dumps(out[name])}")
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--batch", type=int, default=4096)
@@ -102,7 +168,11 @@ def main() -> None:
     parser.add_argument("--bank-size", type=int, default=4096)
     parser.add_argument("--gain-batch", type=int, default=256)
     parser.add_argument("--gain-steps", type=int, default=400)
-    parser.add_argument("--parts", nargs="+", choices=("gains", "nan"), default=("gains", "nan"))
+    parser.add_argument("--parts", nargs="+", choices=("gains", "nan", "compile"),
+                        default=("gains", "nan"))
+    parser.add_argument("--compile-batch", type=int, default=4)
+    parser.add_argument("--compile-steps", type=int, default=50)
+    parser.add_argument("--pieces", nargs="+", default=None, help="compile: these pieces only")
     parser.add_argument("--out", default="arm_checks.json")
     args = parser.parse_args()
     results = {"device": str(jax.devices()[0].device_kind), "jax": jax.__version__,
@@ -118,6 +188,12 @@ def main() -> None:
         results["gains"] = tracking_gains(args.gain_batch, args.gain_steps)
         results["gains"]["seconds_incl_compile"] = time.perf_counter() - start
         log(json.dumps(results["gains"]))
+        save()
+    if "compile" in args.parts:
+        log(f"compile: pieces at {args.compile_batch} arms (persistent cache off)")
+        results["compile"] = {"batch": args.compile_batch, "steps": args.compile_steps}
+        results["compile"].update(compile_pieces(args.compile_batch, args.compile_steps,
+                                                 args.pieces))
         save()
     if "nan" in args.parts:
         for env_id in ("PandaLTLReach0Joints-v0", "PandaLTLReach1Joints-v0"):

@@ -167,3 +167,38 @@ def test_spd_inverse_equals_the_library_inverse():
     mass = a @ np.swapaxes(a, 1, 2) + 0.1 * np.eye(7)
     ours = np.asarray(jax.jit(jax.vmap(spd_inverse))(jnp.asarray(mass, jnp.float32)))
     np.testing.assert_allclose(ours @ mass, np.broadcast_to(np.eye(7), (3, 7, 7)), atol=2e-3)
+
+
+def test_batched_collision_gives_mjx_contacts():
+    """`arm/collision.py` (each kind of pair in one padded call) against `mjx.collision` on
+    random joint angles, many pressing links into the table: the same contacts and parameters in
+    the same order, to float rounding (those within 1 cm; farther ones never act). Where a clipped face has only 3 distinct points, the
+    4th contact repeats one of them, and which one rests on a float tie: compared as point sets."""
+    from specrl_jax.envs.zone.mjx_import import mjx
+
+    model = arm_model.load_model()
+    physics = Physics(model, arm_model.FORCE_LIMITS)
+    m = physics.model
+    rng = np.random.default_rng(7)
+    qs = jnp.asarray(rng.uniform(model.jnt_range[:, 0], model.jnt_range[:, 1], (48, 7)), jnp.float32)
+
+    def contacts(collide):
+        def one(q):
+            data = mjx.com_pos(m, physics.kinematics.fill(physics._template.replace(qpos=q)))
+            return collide(m, data)._impl.contact
+        return jax.jit(jax.vmap(one))(qs)
+
+    ref, ours = contacts(mjx.collision), contacts(physics.collision.collide)
+    for name in ("geom", "friction", "solref", "solimp", "includemargin", "dim"):
+        assert np.array_equal(np.asarray(getattr(ref, name)), np.asarray(getattr(ours, name))), name
+    np.testing.assert_allclose(np.asarray(ours.frame), np.asarray(ref.frame), atol=1e-5)
+    per_pair = lambda x, k: np.asarray(x).reshape(len(qs), -1, 4, *np.shape(x)[2:])
+    dist_r, dist_o = per_pair(ref.dist, 1), per_pair(ours.dist, 1)
+    pos_r, pos_o = per_pair(ref.pos, 3), per_pair(ours.pos, 3)
+    for a_dist, a_pos, b_dist, b_pos in ((dist_o, pos_o, dist_r, pos_r),
+                                         (dist_r, pos_r, dist_o, pos_o)):
+        # every contact of one has a twin in the other's contacts of the same pair
+        gap = np.linalg.norm(a_pos[:, :, :, None] - b_pos[:, :, None], axis=-1)
+        twin = (gap < 1e-4) & (np.abs(a_dist[..., None] - b_dist[:, :, None]) < 1e-5)
+        assert (twin.any(-1) | (a_dist > 0.01)).all()  # the contacts that can act
+    assert (dist_r < 0).any(-1).sum() >= 10  # pairs in contact were compared

@@ -29,7 +29,7 @@ import mujoco
 import numpy as np
 
 from specrl_jax.envs.arm import model as arm_model
-from specrl_jax.envs.arm.kinematics import ChainKinematics, quat_to_mat
+from specrl_jax.envs.arm.kinematics import ChainKinematics
 
 EE_STEP = 0.05  # metres of grasp-target displacement per unit action
 ITERATIONS = 20
@@ -65,11 +65,10 @@ class EndEffectorIK:
     def pose(self, qpos: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
         """Grasp-target position float[3] (m), its orientation float[4] (wxyz, the hand's) and
         the 6 x 7 Jacobian (position rows, then rotation rows) at joint angles `qpos`."""
-        xpos, xquat, anchor, axis = self.kinematics.frames(qpos)
-        hand_mat = quat_to_mat(xquat[self._hand])
-        point = xpos[self._hand] + hand_mat @ self._site_pos
-        jacp = jnp.cross(axis, point - anchor)  # [7, 3]
-        return point, xquat[self._hand], jnp.concatenate([jacp.T, axis.T], axis=0)
+        frames = self.kinematics.frames(qpos)
+        point = frames.xpos[self._hand] + frames.xmat[self._hand] @ self._site_pos
+        jacp = jnp.cross(frames.xaxis, point - frames.xanchor)  # [7, 3]
+        return point, frames.xquat[self._hand], jnp.concatenate([jacp.T, frames.xaxis.T], axis=0)
 
     def solve(self, qpos: jax.Array, target: jax.Array,
               orientation: jax.Array = jnp.asarray(DOWN)) -> jax.Array:

@@ -62,7 +62,8 @@ def keepout_margin(center: jax.Array, config: ArmConfig) -> jax.Array:
     links minus `keepout + r`. Positive passes; 1-Lipschitz in `center`."""
     hulls, points = neutral_obstacles()
     reach = config.keepout + config.region_radius
-    dist = jnp.stack([geometry.signed_distance(center, jnp.asarray(tri))[0] for tri in hulls])
+    dist, _ = geometry.signed_distances(jnp.broadcast_to(center, (len(hulls), 3)),
+                                        geometry.hull_set(hulls))
     point_dist = jnp.linalg.norm(jnp.asarray(points) - center, axis=-1)
     return jnp.minimum(jnp.min(dist), jnp.min(point_dist)) - reach
 

@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 from flax import struct
 
+from specrl_jax.envs.arm.collision import Collision
 from specrl_jax.envs.arm.kinematics import ChainKinematics
 from specrl_jax.envs.zone import small_linalg
 from specrl_jax.envs.zone.mjx_import import mjx
@@ -92,6 +93,7 @@ class Physics:
         self.force_limit = np.asarray(force_limit, np.float32)
         self._template = mjx.make_data(self.model)
         self.kinematics = ChainKinematics(model)
+        self.collision = Collision(model, self.model)
         self._has_constraints = self._template._impl.efc_J.size > 0
 
     def init(self, qpos: jax.Array) -> PhysicsState:
@@ -104,12 +106,13 @@ class Physics:
         return self.kinematics.fill(data)
 
     def position_stage(self, data: mjx.Data) -> mjx.Data:
-        """`mjx.fwd_position` with the chain's own kinematics (ChainKinematics says why); the
-        stages this model lacks (cameras, lights, tendons) are left out."""
+        """`mjx.fwd_position` with the chain's own kinematics and collision driver
+        (ChainKinematics and Collision say why); the stages this model lacks (cameras, lights,
+        tendons) are left out."""
         m = self.model
         data = mjx.com_pos(m, self.kinematics.fill(data))
         data = mjx.factor_m(m, mjx.crb(m, data))
-        data = mjx.make_constraint(m, mjx.collision(m, data))
+        data = mjx.make_constraint(m, self.collision.collide(m, data))
         return mjx.transmission(m, data)
 
     def substep(self, data: mjx.Data, target: jax.Array) -> mjx.Data:

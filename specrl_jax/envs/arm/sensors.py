@@ -10,6 +10,7 @@ from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from specrl_jax.envs.arm import geometry
 
@@ -48,27 +49,30 @@ def point_features(point: jax.Array, centres: jax.Array, radius: jax.Array,
 
 
 def link_sphere_distances(link_pos: jax.Array, link_mat: jax.Array,
-                          triangles: jax.Array | Sequence[jax.Array], centres: jax.Array,
+                          triangles: jax.Array | Sequence[np.ndarray], centres: jax.Array,
                           radius: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Signed link-to-sphere distances `float[L, Z]` (m, negative = penetration) and the unit
     direction `float[L, Z, 3]` from the link's nearest point toward the sphere's centre.
 
     Args:
         link_pos: float[L, 3], link_mat: float[L, 3, 3] link frames (world <- link).
-        triangles: each link's hull in its frame, float[L, T, 3, 3], or a sequence of L
+        triangles: each link's hull in its frame, float[L, T, 3, 3], or a sequence of L static
             float[T_l, 3, 3] (each link its own triangle count: no work on padding).
         centres: float[Z, 3]; radius: float[Z].
     """
+    if isinstance(triangles, (list, tuple)):
+        hulls = geometry.hull_set(triangles)
+        measure = lambda local: geometry.signed_distances(local, hulls)
+    else:
+        measure = lambda local: jax.vmap(geometry.signed_distance)(local, triangles)
 
-    def one_link(pos, mat, tri):
-        local = (centres - pos) @ mat  # [Z, 3] in the link frame
-        dist, normal = jax.vmap(geometry.signed_distance, in_axes=(0, None))(local, tri)
-        return dist - radius, normal @ mat.T
+    def one_region(centre):
+        local = jnp.einsum("lj,lji->li", centre - link_pos, link_mat)  # [L, 3], link frames
+        dist, normal = measure(local)
+        return dist, jnp.einsum("lij,lj->li", link_mat, normal)
 
-    if not isinstance(triangles, (list, tuple)):
-        return jax.vmap(one_link)(link_pos, link_mat, triangles)
-    out = [one_link(link_pos[i], link_mat[i], jnp.asarray(t)) for i, t in enumerate(triangles)]
-    return jnp.stack([d for d, _ in out]), jnp.stack([n for _, n in out])
+    dist, normal = jax.vmap(one_region, out_axes=1)(centres)  # [L, Z], [L, Z, 3]
+    return dist - radius, normal
 
 
 def link_features(dist: jax.Array, normal: jax.Array, color_mask: jax.Array, num_arm: int,

@@ -1,0 +1,120 @@
+"""The arm's contacts with the table and floor: MJX's own colliders, one call per kind of pair.
+
+MJX's collision driver compiles its collider once per distinct mesh (meshes differ in face and
+edge counts), so the arm's 13 contact pairs over 6 hulls became 11 copies of the hull colliders,
+about 60% of a physics substep's program and of its compile time. Here the hulls' convex data
+are padded to one shape and each kind of pair (plane-hull, box-hull) runs once, vmapped over its
+pairs; the contacts, their parameters and their order are MJX's. The padding changes no result:
+short polygons repeat their last vertex (as MJX pads polygons itself), and the extra faces and
+edges repeat the first ones after the real ones, which changes no maximum, minimum or first
+arg-max of the separating-axis test.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from mujoco.mjx._src import collision_driver
+from mujoco.mjx._src.collision_types import FunctionKey
+from mujoco.mjx._src.types import ConvexMesh, GeomType
+
+from specrl_jax.envs.zone.mjx_import import mjx
+
+
+def pad_convex(meshes: list[ConvexMesh]) -> ConvexMesh:
+    """One `ConvexMesh` stacking `meshes` (leading axis), padded to the largest counts."""
+    verts = {c.vert.shape[0] for c in meshes}
+    if len(verts) != 1:
+        raise ValueError(f"hulls must share a vertex count (set maxhullvert); got {sorted(verts)}")
+    faces = max(c.face.shape[0] for c in meshes)
+    corners = max(c.face.shape[1] for c in meshes)
+    edges = max(c.edge.shape[0] for c in meshes)
+
+    def pad(c: ConvexMesh) -> ConvexMesh:
+        face = np.asarray(c.face)
+        face = np.concatenate([face, np.repeat(face[:, -1:], corners - face.shape[1], 1)], 1)
+        face_index = np.arange(faces) % face.shape[0]  # the real ones, then repeats
+        edge_index = np.arange(edges) % c.edge.shape[0]
+        return ConvexMesh(
+            vert=np.asarray(c.vert),
+            face=face[face_index],
+            face_normal=np.asarray(c.face_normal)[face_index],
+            edge=np.asarray(c.edge)[edge_index],
+            edge_face_normal=np.asarray(c.edge_face_normal)[edge_index],
+        )
+
+    return jax.tree.map(lambda *x: jnp.asarray(np.stack(x)), *[pad(c) for c in meshes])
+
+
+class Collision:
+    """`collide(model, data)`: `mjx.collision` for models whose mesh pairs are primitive-hull
+    (any number of hulls with one vertex count), each kind of pair run once over its pairs."""
+
+    def __init__(self, mj_model: mujoco.MjModel, model: mjx.Model):
+        for name in ("max_geom_pairs", "max_contact_points"):
+            if mujoco.mj_name2id(mj_model, mujoco.mjtObj.mjOBJ_NUMERIC, name) >= 0:
+                raise ValueError(f"the arm's collision does not support the {name} numeric")
+        groups = collision_driver._geom_groups(mj_model)
+        self.keys = list(groups)
+        # kinds of pair that hold a mesh second (and a primitive first) run batched
+        self.batches = {}
+        for key in self.keys:
+            first, second = key.types
+            if second == GeomType.MESH and first != GeomType.MESH:
+                kind = (first, second, key.condim)
+                self.batches.setdefault(kind, []).append(key)
+        meshes = sorted({key.data_ids[1] for keys in self.batches.values() for key in keys})
+        self.slot = {mesh: i for i, mesh in enumerate(meshes)}
+        self.meshes = (pad_convex([model._impl.mesh_convex[i] for i in meshes])
+                       if meshes else None)
+        self.geoms = {key: np.asarray([p[:2] for p in pairs]) for key, pairs in groups.items()}
+
+    def _batched(self, m: mjx.Model, d: mjx.Data, kind: tuple, keys: list) -> dict:
+        """dist, pos, frame of every pair of one kind, split back by MJX group."""
+        first, second, condim = kind
+        func = collision_driver._COLLISION_FUNC[(first, second)]
+        geoms = np.concatenate([self.geoms[k] for k in keys])
+        slots = np.concatenate([[self.slot[k.data_ids[1]]] * len(self.geoms[k]) for k in keys])
+        slot_key = FunctionKey((first, second), (-1, 0), condim)
+
+        def one(pair: jax.Array, slot: jax.Array):
+            mesh = jax.tree.map(lambda x: x[slot], self.meshes)
+            m_one = m.tree_replace({"_impl.mesh_convex": (mesh,)})
+            return func(m_one, d, slot_key, pair[None])
+
+        dist, pos, frame = jax.vmap(one)(jnp.asarray(geoms), jnp.asarray(slots))
+        out, start = {}, 0
+        for key in keys:
+            end = start + len(self.geoms[key])
+            out[key] = (dist[start:end].reshape(-1), pos[start:end].reshape(-1, 3),
+                        frame[start:end].reshape(-1, 3, 3))
+            start = end
+        return out
+
+    def collide(self, m: mjx.Model, d: mjx.Data) -> mjx.Data:
+        """`data` with MJX's contacts (`data._impl.contact`), as `mjx.collision` computes them."""
+        if d._impl.ncon == 0:
+            return d
+        groups = collision_driver._contact_groups(m, d)
+        results = {}
+        for kind, keys in self.batches.items():
+            results.update(self._batched(m, d, kind, keys))
+        for key in self.keys:
+            if key not in results:
+                func = collision_driver._COLLISION_FUNC[key.types]
+                results[key] = func(m, d, key, groups[key].geom)
+        contacts = []
+        for key in sorted(self.keys, key=lambda k: k.condim):  # stable: MJX's order
+            contact = groups[key]
+            ncon = collision_driver._COLLISION_FUNC[key.types].ncon
+            if ncon > 1:
+                contact = jax.tree.map(lambda x, r=ncon: jnp.repeat(x, r, axis=0), contact)
+            dist, pos, frame = results[key]
+            contacts.append(contact.replace(dist=dist, pos=pos, frame=frame))
+        contact = jax.tree.map(lambda *x: jnp.concatenate(x), *contacts)
+        return d.tree_replace({"_impl.contact": contact})
+
+
+__all__ = ["Collision", "pad_convex"]
