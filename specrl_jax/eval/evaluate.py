@@ -103,11 +103,12 @@ def prepare_specs(env: Any, specs: Any) -> tuple[Any, tuple[str, ...]]:
     raise TypeError("specs must be all formula strings or all CompiledSpec objects")
 
 
-def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int,
+def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int | jax.Array,
                 policy_params: Any, key: jax.Array, spec_index: jax.Array, record: bool = False,
                 original: Any = None):
     """One episode of at most `horizon` steps (trace-time function; `vmap` it over lanes).
 
+    `horizon` is an int, or (not with `record`) an int32 scalar traced in a `while` loop.
     `original` (optional): the original benchmark's automata stacked like the task's specs
     (`eval.original_ldba`), tracked beside ours to count accepting visits as the original did.
 
@@ -124,7 +125,7 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
     ldba = None if original is None else jax.tree.map(lambda x: x[spec_index], original)
     tracker = None if ldba is None else original_ldba.init(ldba)
 
-    def body(loop, _):
+    def body(loop):
         obs, state, carry, done, aborted, tracker, t = loop
         key_policy, key_step = jax.random.split(jax.random.fold_in(key_loop, t))
         output, carry_next = policy.apply(policy_params, obs, state, carry, key_policy)
@@ -136,7 +137,7 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
         if ldba is not None:
             tracked, _ = original_ldba.step(ldba, tracker, info["propositions"], info["epsilon"])
             tracker = select_tree(done | gives_up, tracker, tracked)
-        # An ended episode stays frozen until the scan (the horizon) is over; a given-up one
+        # An ended episode stays frozen until the loop (the horizon) is over; a given-up one
         # freezes before its step. The spec index is set again after the select so that it stays
         # unbatched over the episodes that share it (and so does every spec read through it).
         obs, state, carry = select_tree(
@@ -148,7 +149,11 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
         return (obs, state, carry, ended, aborted | gives_up, tracker, t + 1), trace
 
     init = (obs, state, carry, jnp.zeros((), bool), jnp.zeros((), bool), tracker, jnp.int32(0))
-    (_, state, _, _, aborted, tracker, _), trace = jax.lax.scan(body, init, None, length=horizon)
+    if record:
+        final, trace = jax.lax.scan(lambda loop, _: body(loop), init, None, length=horizon)
+    else:  # a scan for an int horizon, a while loop for a traced one
+        final, trace = jax.lax.fori_loop(0, horizon, lambda _, loop: body(loop)[0], init), None
+    (_, state, _, _, aborted, tracker, _) = final
     visits = None if ldba is None else jnp.where(ldba.present, tracker.visits, -1)
     return state, aborted, trace, visits
 
@@ -157,15 +162,21 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
                    episodes_per_seed: int, horizon: int | None = None,
                    sequential_seeds: bool = False, original: Any = None,
                    devices: Sequence[Any] | None = None, params_per_seed: bool = False
-                   ) -> Callable[[Any, jax.Array], EpisodeTable]:
-    """A jitted `fn(policy_params, seeds uint32[num_seeds]) -> EpisodeTable` (device arrays,
-    fields `[num_seeds, K, episodes_per_seed]`); compile once, call many times.
+                   ) -> Callable[..., EpisodeTable]:
+    """A jitted `fn(policy_params, seeds uint32[num_seeds], spec_indices=None, horizon=None)
+    -> EpisodeTable` (device arrays, fields `[num_seeds, K, episodes_per_seed]`); compile once,
+    call many times.
+
+    By default the K specs are all the task's specs and every episode runs `horizon` steps
+    (default `params.max_steps`), both fixed at compile time. Passing `spec_indices` (int32[K],
+    any K) and `horizon` (an int32 scalar, which also sets `max_steps`) makes them arguments:
+    one compiled program then serves groups of specs with different horizons.
 
     `sequential_seeds` runs the seeds one after the other (`lax.map`) instead of side by side,
     dividing peak memory by `num_seeds`, for runs too large for one device. With
     `params_per_seed`, `policy_params` has a leading `num_seeds` axis whose entry i serves seed i
     (one trained run per seed). `original`: the
-    original's automata of the K specs (`original_ldba.stack_ldbas`), counted beside ours
+    original's automata of the task's specs (`original_ldba.stack_ldbas`), counted beside ours
     (`EpisodeTable.num_accepting_original`). Memory holds each episode's running state only,
     whatever the horizon.
 
@@ -173,27 +184,33 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
     padded to a multiple of their count; an episode's outcome depends on its seed and index
     only, so the table is the same on any number of devices."""
     policy = as_stateful(policy)
-    horizon = int(params.max_steps) if horizon is None else int(horizon)
-    num_specs = task.num_specs
+    fixed_horizon = int(params.max_steps) if horizon is None else int(horizon)
     mesh = Mesh(np.asarray(list(devices) if devices is not None else jax.local_devices()), ("env",))
     padded = -(-episodes_per_seed // mesh.size) * mesh.size
     on_devices = NamedSharding(mesh, PartitionSpec("env"))
 
-    def episode(policy_params, seed, spec_index, episode_index):
+    def episode(policy_params, run_params, steps, seed, spec_index, episode_index):
         key = jax.random.fold_in(jax.random.key(seed), episode_index)
-        state, aborted, _, visits = run_episode(policy, task, params, horizon, policy_params, key,
-                                                spec_index, original=original)
+        state, aborted, _, visits = run_episode(policy, task, run_params, steps, policy_params,
+                                                key, spec_index, original=original)
         return _outcome(state, aborted, visits)
 
-    per_episode = jax.vmap(episode, in_axes=(None, None, None, 0))
-    per_spec = jax.vmap(per_episode, in_axes=(None, None, 0, None))
+    per_episode = jax.vmap(episode, in_axes=(None, None, None, None, None, 0))
+    per_spec = jax.vmap(per_episode, in_axes=(None, None, None, None, 0, None))
 
     @jax.jit
-    def evaluator(policy_params, seeds):
+    def evaluator(policy_params, seeds, spec_indices=None, horizon=None):
         episodes = jax.lax.with_sharding_constraint(jnp.arange(padded), on_devices)
+        if spec_indices is None:
+            spec_indices = jnp.arange(task.num_specs)
+        if horizon is None:
+            run_params, steps = params, fixed_horizon
+        else:
+            steps = jnp.asarray(horizon, jnp.int32)
+            run_params = params.replace(max_steps=steps)
 
         def one_seed(seed_params, seed):
-            return per_spec(seed_params, seed, jnp.arange(num_specs), episodes)
+            return per_spec(seed_params, run_params, steps, seed, spec_indices, episodes)
 
         if not sequential_seeds:
             table = jax.vmap(one_seed, in_axes=(0 if params_per_seed else None, 0))(policy_params, seeds)

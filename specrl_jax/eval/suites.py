@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import jax
@@ -64,7 +63,8 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
                     params_per_seed: bool = False, horizon: int | None = None,
                     infinite_horizon: int | None = None, label: str = "",
                     log: Callable[[str], None] = print) -> list[SuiteResult]:
-    """Evaluate `policy` on every suite; one compiled evaluator per distinct horizon.
+    """Evaluate `policy` on every suite; one compiled program runs each group of suites that
+    share a horizon (the specs and the horizon are its arguments).
 
     Args:
         policy: a policy function or `StatefulPolicy` (see `tasks.policy`).
@@ -84,36 +84,44 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
     for name in suites:
         by_horizon.setdefault(suite_horizon(name, params.max_steps, horizon, infinite_horizon), []).append(name)
     seed_array = jnp.asarray(seeds, jnp.uint32)
-    groups = []  # (horizon, formulas, {suite: spec indices}, compiled specs, evaluator)
+    formulas, groups = [], []  # groups: (horizon, spec indices, {suite: spec indices})
     for steps, names in by_horizon.items():
-        formulas, indices = [], {}
+        start, indices = len(formulas), {}
         for name in names:
             indices[name] = list(range(len(formulas), len(formulas) + len(specs.suite(name))))
             formulas += specs.suite(name)
-        compiled = automata.stack(
-            [automata.compile_spec(f, env.propositions, alphabet=env.alphabet) for f in formulas])
-        evaluator = make_evaluator(policy, TaskEnv(env, compiled), params.replace(max_steps=steps),
-                                   episodes_per_seed=episodes, original=originals(formulas, env),
-                                   params_per_seed=params_per_seed)
-        groups.append((steps, formulas, indices, compiled, evaluator))
+        groups.append((steps, list(range(start, len(formulas))), indices))
+    compiled = automata.stack(
+        [automata.compile_spec(f, env.propositions, alphabet=env.alphabet) for f in formulas])
+    # One program for every horizon: the group's specs and its horizon are arguments, each
+    # group padded to the largest by repeating its last spec.
+    width = max(len(group_specs) for _, group_specs, _ in groups)
+    evaluator = make_evaluator(policy, TaskEnv(env, compiled), params, episodes_per_seed=episodes,
+                               original=originals(formulas, env), params_per_seed=params_per_seed)
+
+    def arguments(steps: int, group_specs: list[int]) -> tuple:
+        padded = group_specs + group_specs[-1:] * (width - len(group_specs))
+        return policy_params, seed_array, jnp.asarray(padded, jnp.int32), jnp.int32(steps)
+
     start = time.perf_counter()
-    # one compiled evaluator per horizon, compiled side by side (XLA compiles outside the GIL)
-    with ThreadPoolExecutor(max_workers=len(groups)) as pool:
-        executables = list(pool.map(
-            lambda group: group[-1].lower(policy_params, seed_array).compile(), groups))
-    log(f"compiled {len(groups)} evaluator(s) in {time.perf_counter() - start:.1f}s")
+    executable = evaluator.lower(*arguments(*groups[0][:2])).compile()
+    log(f"compiled the evaluator in {time.perf_counter() - start:.1f}s")
     results = {}
-    for (steps, formulas, indices, compiled, _), executable in zip(groups, executables):
+    for steps, group_specs, indices in groups:
         start = time.perf_counter()
-        table = EpisodeTable(*(None if x is None else np.asarray(x) for x in jax.device_get(
-            executable(policy_params, seed_array))))
-        log(f"evaluated {len(seeds)} seeds x {len(formulas)} specs x {episodes} episodes x "
+        table = EpisodeTable(*(None if x is None else np.asarray(x)[:, :len(group_specs)]
+                               for x in jax.device_get(executable(*arguments(steps, group_specs)))))
+        if table.num_accepting_original is not None and (table.num_accepting_original < 0).all():
+            table = table._replace(num_accepting_original=None)  # no spec of the group has one
+        log(f"evaluated {len(seeds)} seeds x {len(group_specs)} specs x {episodes} episodes x "
             f"{steps} steps in {time.perf_counter() - start:.1f}s")
         result = EvalResult(
-            env_id=env_id, spec_names=tuple(formulas), is_finite=np.asarray(compiled.is_finite),
+            env_id=env_id, spec_names=tuple(formulas[i] for i in group_specs),
+            is_finite=np.asarray(compiled.is_finite)[group_specs],
             seeds=tuple(int(s) for s in seeds), episodes_per_seed=episodes, horizon=steps,
             table=table,
         )
         for name, spec_indices in indices.items():
-            results[name] = SuiteResult(env_id, name, label, result.select(spec_indices))
+            local = [i - group_specs[0] for i in spec_indices]
+            results[name] = SuiteResult(env_id, name, label, result.select(local))
     return [results[name] for name in suites]

@@ -53,7 +53,7 @@ def _tiny_world():
 def test_gcrl_learns_a_tiny_world_and_its_agent_follows_specs():
     world, params = _tiny_world()
     method = gcrl.make_method(world, params, trunk=(64, 64), value_features=(64, 64))
-    updates = 40
+    updates = 60
     cfg = gcrl.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * updates,
                           update_epochs=4, num_minibatches=2)
     runner, metrics = jax.jit(make_train(cfg, method))(jax.random.key(1))

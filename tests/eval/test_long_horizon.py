@@ -9,7 +9,7 @@ import specrl_jax
 from specrl_jax import automata, specs
 from specrl_jax.eval import random_policy
 from specrl_jax.eval.evaluate import make_evaluator, record_episodes
-from specrl_jax.eval.suites import evaluate_suites, suite_horizon
+from specrl_jax.eval.suites import evaluate_suites, originals, suite_horizon
 from specrl_jax.tasks import TaskEnv
 
 
@@ -63,3 +63,27 @@ def test_paper_infinite_suites_report_the_original_automatons_count_beside_ours(
     metrics = rec.suite_metrics()
     assert "mu_acc_original_mean" in metrics
     assert len(specs.suite("letter/infinite/rec")) == table.success.shape[1]
+
+
+def test_one_program_for_all_horizons_equals_one_evaluator_per_suite():
+    """`evaluate_suites` runs a finite suite (75 steps) and an infinite one (40 steps here)
+    through one compiled program whose specs and horizon are arguments: every table equals the
+    one of a fixed-horizon evaluator of that suite alone."""
+    env, params = specrl_jax.make("LetterLTL0-v0")
+    policy = random_policy(env)
+    names = ["letter/finite/ind", "letter/infinite/rec"]
+    results = evaluate_suites(policy, "LetterLTL0-v0", env, params, names, episodes=3,
+                              seeds=[1, 2], infinite_horizon=40, log=lambda line: None)
+    for name, result, steps in zip(names, results, (75, 40)):
+        spec_stack = automata.stack([automata.compile_spec(f, env.propositions,
+                                                           alphabet=env.alphabet)
+                                     for f in specs.suite(name)])
+        alone = make_evaluator(policy, TaskEnv(env, spec_stack), params.replace(max_steps=steps),
+                               episodes_per_seed=3, original=originals(specs.suite(name), env))(
+            None, jnp.asarray([1, 2], jnp.uint32))
+        assert result.result.horizon == steps
+        for field in ("success", "violation", "steps", "num_accepting", "num_accepting_original"):
+            expected = getattr(alone, field)
+            np.testing.assert_array_equal(getattr(result.result.table, field),
+                                          None if expected is None else np.asarray(expected),
+                                          err_msg=field)
