@@ -98,28 +98,39 @@ def tracking_gains(num_envs: int, num_steps: int) -> dict:
     return out
 
 
+PIECES = ("kinematics", "substep", "physics_step", "observe_mode0", "observe_mode1", "ik",
+          "keepout_test", "exact_reset", "layout_bank_256", "step_mode0", "rollout_bank_mode0",
+          "rollout_bank_mode1", "rollout_exact_mode0")
+
+
 def compile_pieces(num_envs: int, num_steps: int, pieces: list[str] | None = None) -> dict:
     """Seconds to lower and to compile each piece of the arm's programs at `num_envs` arms, and
     the size of its StableHLO (operations). The pieces nest: `rollout_*` is what
     `env_throughput.py` compiles (a scan of `num_steps` auto-resetting steps: physics step,
     observation, and the reset twice, once per branch of `BatchedAutoReset`)."""
     import env_throughput  # beside this script
+    from jax.experimental.compilation_cache import compilation_cache
 
     from specrl_jax.envs.arm import layout as layout_lib
+    from specrl_jax.envs.zone import small_linalg
 
+    # importing specrl_jax switched the persistent cache on (and compiled through it): off and
+    # reset, so every piece compiles afresh
     jax.config.update("jax_enable_compilation_cache", False)
+    compilation_cache.reset_cache()
     env0, params0 = specrl_jax.make("PandaLTLReach0Joints-v0")
     env1, _ = specrl_jax.make("PandaLTLReach1Joints-v0")
     env_ee, _ = specrl_jax.make("PandaLTLReach0-v0")
     key = jax.random.key(0)
     keys = jax.random.split(key, num_envs)
     physics = env0.physics
-    phys = jax.vmap(physics.init)(jnp.tile(jnp.asarray(NEUTRAL_QPOS, jnp.float32), (num_envs, 1)))
+    neutral = jnp.tile(jnp.asarray(NEUTRAL_QPOS, jnp.float32), (num_envs, 1))
+    phys = jax.jit(jax.vmap(physics.init))(neutral)
     bank = jnp.tile(jnp.asarray([[0.1 * z, 0.2, 0.3] for z in range(8)], jnp.float32), (16, 1, 1))
     bank_params = params0.replace(layout_bank=bank)
 
     def states(env):
-        _, state = jax.vmap(env.reset, in_axes=(0, None))(keys, bank_params)
+        _, state = jax.jit(jax.vmap(env.reset, in_axes=(0, None)))(keys, bank_params)
         return state
 
     def rollout(env, params):
@@ -128,10 +139,14 @@ def compile_pieces(num_envs: int, num_steps: int, pieces: list[str] | None = Non
         run = env_throughput.make_rollout(batched, params, num_steps)
         return run, (key, state)
 
-    data = jax.vmap(physics.data)(phys)
+    def substep(data, target):  # as inside `physics.step`: written-out Cholesky factorisations
+        with small_linalg.small_cholesky():
+            return physics.substep(data, target)
+
+    data = jax.jit(jax.vmap(physics.data))(phys)
     table = {
         "kinematics": lambda: (jax.vmap(physics.data), (phys,)),
-        "substep": lambda: (jax.vmap(physics.substep), (data, phys.qpos)),
+        "substep": lambda: (jax.vmap(substep), (data, phys.qpos)),
         "physics_step": lambda: (jax.vmap(physics.step), (phys, phys.qpos)),
         "observe_mode0": lambda: (jax.vmap(env0._observe), (states(env0),)),
         "observe_mode1": lambda: (jax.vmap(env1._observe), (states(env1),)),
@@ -146,8 +161,9 @@ def compile_pieces(num_envs: int, num_steps: int, pieces: list[str] | None = Non
         "rollout_bank_mode1": lambda: rollout(env1, bank_params),
         "rollout_exact_mode0": lambda: rollout(env0, params0),
     }
+    assert set(table) == set(PIECES)
     out = {}
-    for name in pieces or table:
+    for name in pieces or PIECES:
         function, args = table[name]()
         start = time.perf_counter()
         lowered = (function if hasattr(function, "lower") else jax.jit(function)).lower(*args)
@@ -172,7 +188,8 @@ def main() -> None:
                         default=("gains", "nan"))
     parser.add_argument("--compile-batch", type=int, default=4)
     parser.add_argument("--compile-steps", type=int, default=50)
-    parser.add_argument("--pieces", nargs="+", default=None, help="compile: these pieces only")
+    parser.add_argument("--pieces", nargs="+", choices=PIECES, default=None,
+                        help="compile: these pieces only (default all)")
     parser.add_argument("--out", default="arm_checks.json")
     args = parser.parse_args()
     results = {"device": str(jax.devices()[0].device_kind), "jax": jax.__version__,

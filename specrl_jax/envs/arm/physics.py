@@ -134,13 +134,17 @@ class Physics:
 
     def step(self, state: PhysicsState, target: jax.Array) -> PhysicsState:
         """`substeps` physics steps toward `target` (float[7], rad), held through the step."""
-        data = self._template.replace(
-            qpos=state.qpos, qvel=state.qvel, qacc_warmstart=state.qacc_warmstart
-        )
+
+        def substep(_, carry: PhysicsState) -> PhysicsState:
+            # a substep depends on these three only: the loop carries them, not all of mjx.Data
+            data = self._template.replace(
+                qpos=carry.qpos, qvel=carry.qvel, qacc_warmstart=carry.qacc_warmstart)
+            data = self.substep(data, target)
+            return PhysicsState(qpos=data.qpos, qvel=data.qvel, qacc_warmstart=data.qacc_warmstart)
+
         # MJX's own Cholesky factorisations (mass matrix, Newton Hessian), written out too
         with small_linalg.small_cholesky():
-            data = jax.lax.fori_loop(0, self.substeps, lambda _, d: self.substep(d, target), data)
-        return PhysicsState(qpos=data.qpos, qvel=data.qvel, qacc_warmstart=data.qacc_warmstart)
+            return jax.lax.fori_loop(0, self.substeps, substep, state)
 
 
 __all__ = ["MOTOR_RATE", "SUBSTEPS", "Physics", "PhysicsState", "motor_torque", "spd_inverse"]
