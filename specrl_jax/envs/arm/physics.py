@@ -54,7 +54,7 @@ def spd_inverse(mass: jax.Array) -> jax.Array:
 
 def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: jax.Array,
                  target: jax.Array, force_limit: jax.Array, h: float,
-                 sweeps: int = PGS_SWEEPS) -> jax.Array:
+                 sweeps: int = PGS_SWEEPS, inverse: jax.Array | None = None) -> jax.Array:
     """Joint torques of PyBullet's velocity-level motor, float32[N] (N m).
 
     Args:
@@ -63,11 +63,12 @@ def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: 
         qvel, qpos, target: float[N] joint velocity, angle and target angle.
         force_limit: float[N] per-joint torque bound, N m.
         h: the substep, s.
+        inverse: float[N, N] the inverse of `mass`, if the caller has it.
 
     Returns the torques `tau`, `|tau_i| <= force_limit_i`, such that each unsaturated joint
     reaches `v* = MOTOR_RATE (target - q)` after the substep (given the saturated ones).
     """
-    inverse = spd_inverse(mass)
+    inverse = spd_inverse(mass) if inverse is None else inverse
     want = (MOTOR_RATE * (target - qpos) - qvel) / h - free_accel  # needed extra acceleration
     tau = jnp.clip(mass @ want, -force_limit, force_limit)
     diag = jnp.diagonal(inverse)
@@ -120,10 +121,11 @@ class Physics:
         m = self.model
         data = mjx.fwd_velocity(m, self.position_stage(data))
         mass = mjx.full_m(m, data)
-        free_accel = spd_inverse(mass) @ (data.qfrc_passive - data.qfrc_bias)
+        inverse = spd_inverse(mass)
+        free_accel = inverse @ (data.qfrc_passive - data.qfrc_bias)
         h = float(self.mj_model.opt.timestep)
         tau = motor_torque(mass, free_accel, data.qvel, data.qpos, target,
-                           jnp.asarray(self.force_limit), h)
+                           jnp.asarray(self.force_limit), h, inverse=inverse)
         data = data.replace(qfrc_applied=tau)
         data = mjx.fwd_acceleration(m, mjx.fwd_actuation(m, data))
         if self._has_constraints:
