@@ -5,8 +5,11 @@ env-steps/s; write the encoder of each world family to
 Regenerate the shipped encoders (one H100, about 4 minutes for both families; then copy the
 four rad_encoder_* files from --params-dir into specrl_jax/baselines/data/):
     python benchmarks/rad_pretrain.py --families letter zone --total-steps 10000000 \
-        --num-envs 1024 --num-steps 64 --minibatches 16 --bank-size 4096 --max-wall 95 \
+        --num-envs 1024 --num-steps 64 --minibatches 16 --bank-size 4096 --max-wall 90 \
         --params-dir /tmp/rad_encoders --out /tmp/rad_pretrain_h100.json
+After training, each family reports how the encoder's packed layout fitted one more rollout of
+the final policy and its minibatches (batches that do not fit are encoded padded: same numbers,
+slower) and how long that rollout took.
 On a CPU, a little (to see it learn):
     python benchmarks/rad_pretrain.py --families letter --total-steps 40960 --num-envs 16 \
         --num-steps 128 --minibatches 2 --bank-size 1024 --out /tmp/rad_pretrain_cpu.json
@@ -22,10 +25,11 @@ from pathlib import Path
 
 import flax
 import jax
+import jax.numpy as jnp
 import numpy as np
 
-from specrl_jax.baselines import rad_pretrain
-from specrl_jax.baselines.ppo import make_train
+from specrl_jax.baselines import rad_encoder, rad_pretrain
+from specrl_jax.baselines.ppo import make_train, rollout
 from specrl_jax.envs.registry import make
 
 #: the world whose alphabet each family's encoder reads
@@ -91,8 +95,56 @@ def pretrain_family(family: str, args: argparse.Namespace) -> dict:
     params_dir = Path(args.params_dir) if args.params_dir else rad_pretrain.DATA_DIR
     rad_pretrain.save_encoder(params_dir / f"rad_encoder_{family}.msgpack",
                               rad_pretrain.encoder_params(runner.params), meta)
+    packing = packing_check(trainer, runner, args.seed)
+    print(f"{family}: packed encoding fits {packing['rollout_fit']:.0%} of a rollout's steps "
+          f"(load up to {packing['rollout_max_load']}) and {packing['minibatch_fit']:.0%} of its "
+          f"minibatches (load up to {packing['minibatch_max_load']}; the rest run padded); "
+          f"a rollout takes {packing['rollout_s']:.3f}s of the "
+          f"{cfg.batch_size / steps_per_s:.3f}s of an update")
     return {**meta, "setup_s": setup, "compile_and_first_chunk_s": compile_wall,
-            "steps_per_s_after_compile": steps_per_s, "rows": rows}
+            "steps_per_s_after_compile": steps_per_s, "packing": packing, "rows": rows}
+
+
+def packing_check(trainer, runner, seed: int) -> dict:
+    """How the encoder's packed layout (`rad_encoder.pack_rows`) fits one more rollout of the
+    final policy, per step (the envs' graphs) and per minibatch of a shuffle of it as the update
+    draws them, and how long a rollout takes (`rollout_s`, second call). Load: the largest,
+    over blocks b, of (nodes of blocks >= b) / (rows of blocks >= b); a batch fits (is encoded
+    packed) when its load is at most 1."""
+    cfg, banks = trainer.config, trainer.method.network.banks
+
+    def load(obs):
+        graph = banks.graph(obs)
+        sizes = rad_encoder.block_sizes(banks.packing, *graph.neighbours.shape)
+        if sizes is None:  # batches this small are always encoded padded
+            return jnp.full((len(banks.packing),), jnp.inf)
+        blocks = rad_encoder.node_blocks(graph).reshape(-1, 1)
+        counts = jnp.sum(blocks == jnp.arange(len(sizes)), axis=0)
+        return jnp.cumsum(counts[::-1])[::-1] / np.cumsum(sizes[::-1])[::-1]
+
+    @jax.jit
+    def check(runner):
+        _, _, traj = rollout.collect(runner.key, runner.params, trainer.apply,
+                                     trainer.method.env, runner.env_state, runner.obs,
+                                     runner.task_params, cfg.num_steps, cfg.gamma,
+                                     cfg.timeouts_terminal)
+        flat = jax.tree.map(lambda x: x.reshape(cfg.batch_size, *x.shape[2:]), traj.obs)
+        order = jax.random.permutation(jax.random.key(seed), cfg.batch_size)
+        minibatches = jax.tree.map(
+            lambda x: x[order].reshape(cfg.num_minibatches, cfg.minibatch_size, *x.shape[1:]),
+            flat)
+        return jax.lax.map(load, traj.obs), jax.lax.map(load, minibatches)
+
+    jax.block_until_ready(check(runner))
+    start = time.perf_counter()
+    batches = jax.block_until_ready(check(runner))
+    out = {"rollout_s": time.perf_counter() - start}  # the collect, and a little for the loads
+    for name, loads in zip(("rollout", "minibatch"), batches):
+        loads = np.asarray(loads)  # [batches, blocks]
+        out[f"{name}_fit"] = float(np.mean(loads.max(axis=1) <= 1))
+        out[f"{name}_max_load"] = round(float(loads.max()), 3)
+        out[f"{name}_max_load_per_block"] = [round(float(x), 3) for x in loads.max(axis=0)]
+    return out
 
 
 def main() -> None:

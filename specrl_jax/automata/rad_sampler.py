@@ -55,51 +55,50 @@ class DFA(NamedTuple):
 
 def minimise(dfa: DFA) -> tuple[DFA, np.ndarray]:
     """The minimal DFA of `dfa`'s language in canonical numbering (start 0, breadth-first over
-    symbols in order), and the map old state -> new state (-1: unreachable from the start)."""
-    delta = np.asarray(dfa.delta, np.int64)
-    accepting = np.asarray(dfa.accepting, bool)
-    num_states, num_symbols = delta.shape
-    reachable = np.zeros(num_states, bool)
-    reachable[dfa.start] = True
-    frontier = [dfa.start]
-    while frontier:
-        nxt = np.unique(delta[frontier].reshape(-1))
-        frontier = [int(s) for s in nxt if not reachable[s]]
-        reachable[frontier] = True
+    symbols in order), and the map old state -> new state (-1: unreachable from the start).
+
+    Plain Python over lists: the DFAs are tiny (at most tens of states), where numpy's per-call
+    overhead dominated the bank build."""
+    rows = np.asarray(dfa.delta, np.int64).tolist()
+    accepting = np.asarray(dfa.accepting, bool).tolist()
+    num_states, num_symbols = len(rows), len(rows[0])
+    start = int(dfa.start)
+    reached, queue = {start}, [start]
+    for s in queue:
+        for t in rows[s]:
+            if t not in reached:
+                reached.add(t)
+                queue.append(t)
+    states = sorted(reached)
     # Moore refinement: split blocks by (own block, successors' blocks) until none splits
-    block = np.where(reachable, accepting.astype(np.int64), -1)
-    count = len(np.unique(block[reachable]))
+    block = {s: int(accepting[s]) for s in states}
+    count = len(set(block.values()))
     while True:
-        signature = np.concatenate([block[:, None], block[delta]], axis=1)[reachable]
-        _, inverse = np.unique(signature, axis=0, return_inverse=True)
-        block = np.full(num_states, -1, np.int64)
-        block[reachable] = inverse.reshape(-1)
-        new_count = int(inverse.max()) + 1
-        if new_count == count:
+        labels: dict[tuple, int] = {}
+        block = {s: labels.setdefault((block[s], *(block[t] for t in rows[s])), len(labels))
+                 for s in states}
+        if len(labels) == count:
             break
-        count = new_count
-    num_blocks = int(block[reachable].max()) + 1
-    rep = np.zeros(num_blocks, np.int64)
-    rep[block[reachable]] = np.flatnonzero(reachable)
+        count = len(labels)
+    rep = {}
+    for s in states:
+        rep.setdefault(block[s], s)
     # breadth-first numbering from the start's block
-    order = {int(block[dfa.start]): 0}
-    queue = [int(block[dfa.start])]
-    while queue:
-        b = queue.pop(0)
-        for a in range(num_symbols):
-            c = int(block[delta[rep[b], a]])
-            if c not in order:
-                order[c] = len(order)
-                queue.append(c)
-    renumber = np.zeros(num_blocks, np.int64)
+    order = {block[start]: 0}
+    queue = [block[start]]
+    for b in queue:
+        for t in rows[rep[b]]:
+            if block[t] not in order:
+                order[block[t]] = len(order)
+                queue.append(block[t])
+    new_delta = np.zeros((len(order), num_symbols), np.int32)
+    new_accepting = np.zeros(len(order), bool)
     for b, i in order.items():
-        renumber[b] = i
-    new_delta = np.zeros((num_blocks, num_symbols), np.int32)
-    new_accepting = np.zeros(num_blocks, bool)
-    for b in range(num_blocks):
-        new_delta[renumber[b]] = renumber[block[delta[rep[b]]]]
-        new_accepting[renumber[b]] = accepting[rep[b]]
-    state_map = np.where(reachable, renumber[np.maximum(block, 0)], -1).astype(np.int32)
+        new_delta[i] = [order[block[t]] for t in rows[rep[b]]]
+        new_accepting[i] = accepting[rep[b]]
+    state_map = np.full(num_states, -1, np.int32)
+    for s in states:
+        state_map[s] = order[block[s]]
     return DFA(new_delta, new_accepting, 0), state_map
 
 
@@ -290,8 +289,8 @@ def build_bank(cdfas: Sequence[Sequence[DFA]], alphabet: np.ndarray,
             num_states[i, n] = s
         accepting[i, len(cdfa):, 0] = True
         live[i, len(cdfa):, 0] = True
-    arrays = dict(delta=delta, accepting=accepting, live=live, reach=reach,
-                  num_states=num_states, alphabet=alphabet)
+    arrays = {"delta": delta, "accepting": accepting, "live": live, "reach": reach,
+              "num_states": num_states, "alphabet": alphabet}
     return DFABank(**jax.device_put(arrays))
 
 

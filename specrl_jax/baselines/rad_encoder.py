@@ -13,9 +13,16 @@ Layout: node 0 is the AND node, nodes 1 .. Ns-1 the state nodes, nodes Ns .. Ns+
 transition nodes (each block padded). Edges are stored per receiver, as in-neighbour slots
 int32[Nn, D]: slot 0 is the node itself; a state or AND node has up to D-1 in-neighbours, a
 transition node one (its successor state). The network gathers each node's slots and takes the
-attention softmax over them: the sums of segment ops over an edge list, without a scatter
-(XLA's scatter made the encoder 10x slower on a CPU). All nodes go through one gather and one
-softmax (separate ones for the two node blocks crashed XLA:CPU under nested vmaps).
+attention softmax over them: the sums of segment ops over an edge list, without a scatter in the
+forward pass (XLA's scatter made the encoder 10x slower on a CPU).
+
+Packing (`pack_rows`, for batches of many graphs: pretraining). A padded batch is mostly padding:
+the Letter bank's graphs have 15 live nodes of 45 on average at their start state (fewer once
+advanced) and 2 live slots of 6 per node. The encoder then takes the live nodes of the whole
+batch as rows of one array, in blocks by the number of their in-neighbours (0, 1, 2, more), each
+block gathering only as many slots as its nodes need; the rows per block are sized for the
+batch (`packing_allowance`, from the bank), and a batch that does not fit is encoded padded
+(`lax.cond`), so the numbers are the same either way.
 
 The host builds, per conjunction of a bank, the graph of its full minimal DFAs once
 (`build_graphs`); inside `jit`, `graph_of` masks the nodes that the current states can no longer
@@ -30,8 +37,9 @@ the in-edges of i (itself included), `h_i = sum_j alpha_ij W_s x_j`.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import flax.linen as nn
 import jax
@@ -202,70 +210,247 @@ def graph_of(graphs: GraphBank, bank: DFABank, index: jax.Array, q: jax.Array) -
                  neighbour_mask)
 
 
-def _gather_nodes(src: jax.Array, ids: jax.Array) -> jax.Array:
-    """`src[g, ids[g, ...]]` for float32[G, Nn, H, F] and int32[G, ...] (one flat gather)."""
-    num_graphs, num_nodes = src.shape[:2]
-    offsets = (jnp.arange(num_graphs) * num_nodes).reshape(-1, *([1] * (ids.ndim - 1)))
-    return src.reshape(num_graphs * num_nodes, *src.shape[2:])[ids + offsets]
+#: slot widths of the packed layout's first blocks: nodes with 0, 1, 2 in-neighbours besides
+#: themselves (transition nodes and sinks have at most one); a last block holds the rest
+BLOCK_WIDTHS = (0, 1, 2)
 
 
-def _attend(src: jax.Array, dst: jax.Array, slots: jax.Array, mask: jax.Array,
-            attn: jax.Array) -> jax.Array:
-    """GATv2 aggregation for receivers `dst` float32[G, R, H, F] over their in-neighbour slots
-    `slots` int32[G, R, D] (node ids within the graph; `mask` bool[G, R, D]) of the senders'
-    `src` float32[G, Nn, H, F]. Returns float32[G, R, H, F]."""
-    message = _gather_nodes(src, slots)
-    score = jnp.sum(nn.leaky_relu(message + dst[:, :, None], 0.2) * attn, axis=-1)  # [G, R, D, H]
-    score = jnp.where(mask[..., None], score, -jnp.inf)
-    top = jax.lax.stop_gradient(jnp.max(score, axis=2, keepdims=True))
-    weight = jnp.where(mask[..., None], jnp.exp(score - jnp.where(jnp.isfinite(top), top, 0.0)),
-                       0.0)
-    weight = weight / jnp.maximum(jnp.sum(weight, axis=2, keepdims=True), 1e-9)
-    return jnp.sum(weight[..., None] * message, axis=2)
+class NodeRows(NamedTuple):
+    """The nodes of G graphs as the R rows of one array, in consecutive blocks of rows that share
+    a slot width W_b (the padded layout is one block of all G * Nn rows).
 
-
-class GATv2Layer(nn.Module):
-    """One GATv2 convolution on `[h, h0]` of `heads` heads, `features` each, tanh per head,
-    heads summed.
-
-    Args (call): h, h0 float32[G, Nn, features] node states of G graphs, and the graphs
-    (`neighbours`, `neighbour_mask` [G, Nn, D]).
-    Returns float32[G, Nn, features].
+    Attributes:
+        features: float32[R, F] node features (zero on padding rows).
+        row_mask: bool[R] live nodes.
+        slots: int32[R_b, W_b] per block: the rows of each row's in-neighbours other than itself.
+        slot_mask: bool[R_b, W_b] per block.
+        roots: int32[G] the row of each graph's AND node.
     """
+
+    features: jax.Array
+    row_mask: jax.Array
+    slots: tuple[jax.Array, ...]
+    slot_mask: tuple[jax.Array, ...]
+    roots: jax.Array
+
+
+def padded_rows(graph: Graph) -> NodeRows:
+    """G padded graphs (`Graph` with one batch axis) as G * Nn rows in one block of width D - 1."""
+    num_graphs, num_nodes, width = graph.neighbours.shape
+    offset = (jnp.arange(num_graphs) * num_nodes)[:, None, None]
+    slots = (graph.neighbours[..., 1:] + offset).reshape(num_graphs * num_nodes, width - 1)
+    mask = graph.neighbour_mask[..., 1:].reshape(num_graphs * num_nodes, width - 1)
+    return NodeRows(graph.features.reshape(num_graphs * num_nodes, -1),
+                    graph.node_mask.reshape(-1), (slots,), (mask,),
+                    jnp.arange(num_graphs) * num_nodes)
+
+
+def block_widths(num_slots: int) -> tuple[int, ...]:
+    """Slot widths of the packed blocks for graphs of `num_slots` slots (self included)."""
+    return tuple(min(w, num_slots - 1) for w in BLOCK_WIDTHS) + (num_slots - 1,)
+
+
+def block_sizes(packing: Sequence[float], num_graphs: int, num_nodes: int, num_slots: int
+                ) -> tuple[int, ...] | None:
+    """Rows of each packed block for G = `num_graphs` graphs, given the rows per graph that each
+    block is allowed (`packing`, one per `block_widths` entry); the last block gets one padded
+    graph more. None where packing would not take fewer rows than the padded layout."""
+    widths = block_widths(num_slots)
+    if len(packing) != len(widths):
+        raise ValueError(f"packing needs {len(widths)} allowances (blocks of widths {widths}), "
+                         f"got {len(packing)}")
+    sizes = [int(np.ceil(num_graphs * a)) for a in packing]
+    sizes[-1] += num_nodes
+    return None if sum(sizes) >= num_graphs * num_nodes else tuple(sizes)
+
+
+def node_blocks(graph: Graph) -> jax.Array:
+    """int32[..., Nn]: each live node's packed block (the first of `block_widths` that holds its
+    in-neighbours other than itself); -1 for masked nodes."""
+    widths = block_widths(graph.neighbours.shape[-1])
+    degree = jnp.sum(graph.neighbour_mask[..., 1:], axis=-1)
+    block = jnp.sum(degree[..., None] > jnp.asarray(widths[:-1]), axis=-1)
+    return jnp.where(graph.node_mask, block, -1)
+
+
+def pack_rows(graph: Graph, sizes: Sequence[int]) -> tuple[NodeRows, jax.Array]:
+    """The live nodes of G graphs packed into blocks of `sizes` rows and `block_widths` slots,
+    and whether they fit (bool[]).
+
+    A node goes to the block of the fewest slots that hold its in-neighbours; a block that is
+    full passes the rest of its nodes on to the next (wider) blocks. Within a node, the live
+    slots come first (attention ignores slot order)."""
+    num_graphs, num_nodes, num_slots = graph.neighbours.shape
+    widths = block_widths(num_slots)
+    total, flat = sum(sizes), num_graphs * num_nodes
+    other = graph.neighbour_mask[..., 1:].reshape(flat, num_slots - 1)
+    block = node_blocks(graph).reshape(flat)
+    row = jnp.full(flat, total, jnp.int32)
+    end, start = jnp.zeros((), jnp.int32), 0
+    for b, size in enumerate(sizes):
+        member = block == b
+        first = jnp.maximum(start, end)
+        row = jnp.where(member, first + jnp.cumsum(member) - 1, row)
+        end, start = first + jnp.sum(member), start + size
+    owner = jnp.full(total, -1, jnp.int32).at[row].set(jnp.arange(flat, dtype=jnp.int32),
+                                                       mode="drop")
+    row_mask = owner >= 0
+    owner = jnp.maximum(owner, 0)
+    features = graph.features.reshape(flat, -1)[owner] * row_mask[:, None]
+    mask = other[owner] & row_mask[:, None]
+    order = jnp.argsort(~mask, axis=-1, stable=True)
+    mask = jnp.take_along_axis(mask, order, axis=-1)
+    nodes = jnp.take_along_axis(graph.neighbours.reshape(flat, num_slots)[owner, 1:], order, -1)
+    rows = row[(owner // num_nodes * num_nodes)[:, None] + nodes]
+    rows = jnp.where(mask, rows, jnp.arange(total)[:, None])
+    slots, slot_mask, start = [], [], 0
+    for width, size in zip(widths, sizes):
+        slots.append(rows[start:start + size, :width])
+        slot_mask.append(mask[start:start + size, :width])
+        start += size
+    roots = row[jnp.arange(num_graphs) * num_nodes]
+    return NodeRows(features, row_mask, tuple(slots), tuple(slot_mask), roots), end <= total
+
+
+def packing_allowance(graphs: GraphBank, bank: DFABank, slack: float = 1.25,
+                      spare: float = 0.5) -> tuple[float, ...]:
+    """Rows per graph for each packed block: `slack` times the mean count of the block's nodes
+    over the bank's graphs at their start states (the largest graph of each conjunction: an
+    advanced graph only loses nodes, and a node keeps its in-neighbours), and `spare` rows more
+    for the last block (it takes what overflows the others)."""
+    index = jnp.arange(bank.size)
+    q = jnp.zeros((bank.size, bank.max_conjuncts), jnp.int32)
+    g = jax.jit(jax.vmap(graph_of, in_axes=(None, None, 0, 0)))(graphs, bank, index, q)
+    blocks = np.asarray(jax.jit(node_blocks)(g))
+    widths = block_widths(g.neighbours.shape[-1])
+    means = [float((blocks == b).sum()) / bank.size for b in range(len(widths))]
+    allowance = [slack * m for m in means]
+    allowance[-1] += spare
+    return tuple(allowance)
+
+
+class DenseWeights(nn.Module):
+    """A dense layer's parameters under `nn.Dense`'s names (`kernel` [in, out], `bias`),
+    returned for the encoder's functions."""
+
+    features_in: int
+    features_out: int
+
+    @nn.compact
+    def __call__(self) -> tuple[jax.Array, jax.Array]:
+        kernel = self.param("kernel", unit_columns, (self.features_in, self.features_out))
+        return kernel, self.param("bias", nn.initializers.zeros_init(), (self.features_out,))
+
+
+class GATv2Weights(nn.Module):
+    """The shared GATv2 layer's parameters: `kernel` [2 F, 2 H F] mapping `[h, h0]` to the
+    sender (first H F columns) and receiver projections, `bias`, `attention` [H, F]."""
 
     features: int = 64
     heads: int = 4
 
     @nn.compact
-    def __call__(self, h: jax.Array, h0: jax.Array, graph: Graph) -> jax.Array:
+    def __call__(self) -> tuple[jax.Array, jax.Array, jax.Array]:
         width = self.heads * self.features
         kernel = self.param("kernel", unit_columns, (2 * self.features, 2 * width))
         bias = self.param("bias", nn.initializers.zeros_init(), (2 * width,))
         attn = self.param("attention", nn.initializers.xavier_normal(), (self.heads, self.features))
-        # [h, h0] @ kernel, with h0's half the same in every round (XLA computes it once)
-        both = h @ kernel[:self.features] + (h0 @ kernel[self.features:] + bias)
-        shape = (*h.shape[:2], self.heads, self.features)
-        src, dst = both[..., :width].reshape(shape), both[..., width:].reshape(shape)
-        out = _attend(src, dst, graph.neighbours, graph.neighbour_mask, attn)
-        return jnp.sum(jnp.tanh(out), axis=2)
+        return kernel, bias, attn
+
+
+def _attend(message: jax.Array, valid: jax.Array, dst: jax.Array, attn: jax.Array
+            ) -> jax.Array:
+    """GATv2 aggregation for B receivers `dst` float32[B, H, F] over the messages of their
+    slots `message` float32[B, 1 + W, H, F] (slot 0: their own; `valid` bool[B, 1 + W]).
+    Returns float32[B, H, F]."""
+    valid = valid[..., None]
+    score = jnp.sum(nn.leaky_relu(message + dst[:, None], 0.2) * attn, axis=-1)  # [B, 1+W, H]
+    score = jnp.where(valid, score, -jnp.inf)
+    top = jax.lax.stop_gradient(jnp.max(score, axis=1, keepdims=True))
+    weight = jnp.where(valid, jnp.exp(score - jnp.where(jnp.isfinite(top), top, 0.0)), 0.0)
+    weight = weight / jnp.maximum(jnp.sum(weight, axis=1, keepdims=True), 1e-9)
+    return jnp.sum(weight[..., None] * message, axis=1)
+
+
+def encode_rows(embed: tuple[jax.Array, jax.Array], gat: tuple[jax.Array, jax.Array, jax.Array],
+                num_layers: int, rows: NodeRows) -> jax.Array:
+    """The AND nodes' hidden states float32[G, F] after `num_layers` rounds of the shared GATv2
+    layer (4 heads on `[h, h0]`, tanh per head, heads summed) over `rows`."""
+    kernel, bias, attn = gat
+    heads, features = attn.shape
+    width = heads * features
+    # per block (split, whose transpose is a concatenation): rows, and the slots in one gather
+    sizes = tuple(int(slots.shape[0]) for slots in rows.slots)
+    gathered = tuple(int(slots.size) for slots in rows.slots)
+    slots = jnp.concatenate([x.reshape(-1) for x in rows.slots])
+    valid = [jnp.concatenate([own[:, None], mask], axis=1) for own, mask
+             in zip(jax.lax.split(rows.row_mask, sizes), rows.slot_mask)]
+    h0 = rows.features @ embed[0] + embed[1]
+    # h0's half of [h, h0] @ kernel, the same every round
+    static_src = h0 @ kernel[features:, :width] + bias[:width]
+    static_dst = h0 @ kernel[features:, width:] + bias[width:]
+
+    def layer(h, _):
+        src = (h @ kernel[:features, :width] + static_src).reshape(-1, heads, features)
+        dst = (h @ kernel[:features, width:] + static_dst).reshape(-1, heads, features)
+        others = jax.lax.split(src[slots], gathered)
+        parts = []
+        for own, other, d, v in zip(jax.lax.split(src, sizes), others, jax.lax.split(dst, sizes),
+                                    valid):
+            message = jnp.concatenate([own[:, None], other.reshape(own.shape[0], -1, heads,
+                                                                   features)], axis=1)
+            parts.append(_attend(message, v, d, attn))
+        return jnp.sum(jnp.tanh(jnp.concatenate(parts)), axis=1) * rows.row_mask[:, None], None
+
+    h, _ = jax.lax.scan(layer, h0, length=num_layers)  # one shared layer, num_layers rounds
+    return h[rows.roots]
+
+
+#: graphs per step of a packed batch's padded fallback (`RADEncoder`)
+PADDED_CHUNK = 256
 
 
 class RADEncoder(nn.Module):
-    """GATv2 over a cDFA `Graph` (leading batch axes allowed) -> float32[..., out]."""
+    """GATv2 over a cDFA `Graph` (leading batch axes allowed) -> float32[..., out].
+
+    `packing` (rows per graph of each block, `packing_allowance`): a batch whose live nodes fit
+    is encoded packed; one that does not, padded (the same numbers either way)."""
 
     hidden: int = 64
     heads: int = 4
     num_layers: int = 8
     out: int = 32
+    packing: tuple[float, ...] | None = None
 
     @nn.compact
     def __call__(self, graph: Graph) -> jax.Array:
         batch = graph.node_mask.shape[:-1]
         graph = jax.tree.map(lambda x: x.reshape(-1, *x.shape[len(batch):]), graph)
-        h0 = nn.Dense(self.hidden, kernel_init=unit_columns, name="embed")(graph.features)
-        layer = GATv2Layer(self.hidden, self.heads, name="gat")
-        h = h0
-        for _ in range(self.num_layers):  # one shared layer, applied num_layers times
-            h = layer(h, h0, graph) * graph.node_mask[..., None]
-        emb = nn.Dense(self.out, kernel_init=unit_columns, name="readout")(h[:, 0])
+        weights = (DenseWeights(graph.features.shape[-1], self.hidden, name="embed")(),
+                   GATv2Weights(self.hidden, self.heads, name="gat")())
+        encode = functools.partial(encode_rows, num_layers=self.num_layers)
+        sizes = (None if self.packing is None
+                 else block_sizes(self.packing, *graph.neighbours.shape))
+        if sizes is None:
+            h = encode(*weights, rows=padded_rows(graph))
+        else:
+            rows, fits = pack_rows(graph, sizes)
+
+            def packed(weights, rows, graph):
+                return encode(*weights, rows=rows)
+
+            # rematerialised, or the packed branch would write (zero) residuals of the padded
+            # one's size for the backward pass, costing more than packing saves; in chunks of
+            # graphs, each rematerialised, so the rare padded batch takes little memory
+            @jax.checkpoint
+            def padded(weights, rows, graph):
+                @jax.checkpoint
+                def one(graph):
+                    return encode(*weights, rows=padded_rows(jax.tree.map(lambda x: x[None],
+                                                                          graph)))[0]
+
+                return jax.lax.map(one, graph, batch_size=PADDED_CHUNK)
+
+            h = jax.lax.cond(fits, packed, padded, weights, rows, graph)
+        emb = nn.Dense(self.out, kernel_init=unit_columns, name="readout")(h)
         return emb.reshape(*batch, self.out)

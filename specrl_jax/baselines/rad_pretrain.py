@@ -5,7 +5,9 @@ that occurs this step; the task is a RAD conjunction of DFAs, +1 and the end of 
 every DFA accepts, -1 and the end when one can no longer accept; horizon 75 (Letter) / 1000
 (Zone). Here `SymbolWorld` is that world over any alphabet (its action is an alphabet row,
 including the empty assignment, a no-op for RAD DFAs), run by the one task loop over a
-`DFASource`. The network is the GATv2 encoder with linear actor and critic heads (`--dumb-ac`).
+`DFASource`. The network is the GATv2 encoder with linear actor and critic heads (`--dumb-ac`);
+it encodes each batch of graphs packed to its live nodes (`rad_encoder.pack_rows`, rows sized by
+the bank's `packing_allowance`), the same numbers as padded at a fraction of the cost.
 PPO as the original: gamma 0.9, GAE lambda 0.5, lr 1e-3, clip 0.1, 2 epochs, entropy 0.01,
 16 envs x 512 steps in minibatches of 1,024, 10M steps.
 
@@ -36,6 +38,7 @@ from specrl_jax.baselines.rad_encoder import (
     build_graphs,
     graph_of,
     num_features,
+    packing_allowance,
 )
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.envs.spaces import Discrete
@@ -109,10 +112,12 @@ class DFAObs(NamedTuple):
 
 
 class Banks:
-    """A DFA bank and its graphs, held by a network as one static attribute (by identity)."""
+    """A DFA bank, its graphs and their packing allowance (`rad_encoder.packing_allowance`), held
+    by a network as one static attribute (by identity)."""
 
     def __init__(self, bank: DFABank, graphs: GraphBank):
         self.bank, self.graphs = bank, graphs
+        self.packing = packing_allowance(graphs, bank)
 
     def graph(self, obs: DFAObs):
         """The graphs of a batch of tasks (any leading axes)."""
@@ -133,7 +138,8 @@ class PretrainNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, obs: DFAObs) -> PolicyOutput:
-        encoder = RADEncoder(self.hidden, num_layers=self.num_layers, name="encoder")
+        encoder = RADEncoder(self.hidden, num_layers=self.num_layers,
+                             packing=self.banks.packing, name="encoder")
         emb = encoder(self.banks.graph(obs))
         logits = nn.Dense(self.num_actions, kernel_init=unit_columns, name="actor")(emb)
         value = nn.Dense(1, kernel_init=unit_columns, name="critic")(emb)[..., 0]

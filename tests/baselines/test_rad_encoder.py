@@ -151,3 +151,53 @@ def test_embedding_depends_on_the_language_only():
     np.testing.assert_allclose(batch[0], base, atol=1e-5)
     np.testing.assert_allclose(batch[1], emb(_graph([[HAND, EVENTUALLY_B]], q=[1, 0])),
                                atol=1e-5)
+
+
+def test_packed_batches_encode_and_differentiate_as_padded_ones():
+    # RAD conjunctions over 4 letters, each advanced by a few random symbols
+    bank = rad.sample_bank(48, automata.zero_or_one(4), seed=3, max_size=40)
+    graphs = enc.build_graphs(bank)
+    rng = np.random.default_rng(0)
+    index = jnp.asarray(rng.integers(0, bank.size, 32), jnp.int32)
+    symbols = jnp.asarray(rng.integers(0, 5, (2, 32)), jnp.int32)
+
+    @jax.jit
+    def advanced_graphs(index, symbols):
+        q = jnp.zeros((32, bank.max_conjuncts), jnp.int32)
+        for symbol in symbols:
+            q = jax.vmap(rad.advance, in_axes=(None, 0, 0, 0))(bank, index, q, symbol)
+        return jax.vmap(enc.graph_of, in_axes=(None, None, 0, 0))(graphs, bank, index, q)
+
+    batch = advanced_graphs(index, symbols)
+    packing = enc.packing_allowance(graphs, bank)
+    tight = tuple(0.2 * a for a in packing)  # too few rows: the batch is encoded padded
+    num_graphs, num_nodes, num_slots = batch.neighbours.shape
+    for allowance, fit in ((packing, True), (tight, False)):
+        sizes = enc.block_sizes(allowance, num_graphs, num_nodes, num_slots)
+        assert sizes is not None and sum(sizes) < num_graphs * num_nodes
+        rows, fits = jax.jit(enc.pack_rows, static_argnums=1)(batch, sizes)
+        assert bool(fits) == fit
+    # packed: every live node on one row, in a block wide enough for its in-neighbours
+    rows, _ = jax.jit(enc.pack_rows, static_argnums=1)(
+        batch, enc.block_sizes(packing, num_graphs, num_nodes, num_slots))
+    assert int(rows.row_mask.sum()) == int(batch.node_mask.sum())
+    assert sum(int(m.sum()) for m in rows.slot_mask) == int(batch.neighbour_mask[..., 1:].sum())
+    np.testing.assert_array_equal(rows.features[rows.roots], batch.features[:, 0])
+
+    def run(module, params):
+        def loss(p):
+            emb = module.apply(p, batch)
+            return jnp.sum(jnp.sin(emb)), emb
+
+        (_, emb), grads = jax.value_and_grad(loss, has_aux=True)(params)
+        return emb, grads
+
+    padded = enc.RADEncoder(hidden=8, num_layers=2)
+    params = padded.init(jax.random.key(0), batch)
+    want_emb, want_grads = jax.jit(lambda p: run(padded, p))(params)
+    for allowance in (packing, tight):
+        module = enc.RADEncoder(hidden=8, num_layers=2, packing=allowance)
+        emb, grads = jax.jit(lambda p, m=module: run(m, p))(params)
+        np.testing.assert_allclose(emb, want_emb, rtol=1e-5, atol=1e-5)
+        jax.tree.map(lambda a, b: np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5),
+                     grads, want_grads)
