@@ -7,7 +7,9 @@ are padded to one shape and each kind of pair (plane-hull, box-hull) runs once, 
 pairs; the contacts, their parameters and their order are MJX's. The padding changes no result:
 short polygons repeat their last vertex (as MJX pads polygons itself), and the extra faces and
 edges repeat the first ones after the real ones, which changes no maximum, minimum or first
-arg-max of the separating-axis test.
+arg-max of the separating-axis test. The padding adds arithmetic (every box-hull pair clips
+6-cornered polygons, MJX's 4 for half the hulls): 78 ms against MJX's 61 ms for 256 arms on a
+2-core CPU; grouping the hulls by polygon size (two calls) gave 71 ms for twice the program.
 """
 
 from __future__ import annotations

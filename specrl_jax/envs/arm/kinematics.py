@@ -4,12 +4,12 @@ MJX's generic `kinematics` walks the body tree level by level with gathers and c
 for this 13-body chain XLA turns it into about ten thousand scalar operations (a 1.5 MB HLO
 module; 2.7 s for 16 arms on a 2-core CPU, which dominated the whole physics step). Here the
 same quantities (MuJoCo's conventions: `xquat` wxyz, `xmat` world <- body) come from a Python
-loop over the static chain in which every step is a product with a constant matrix: a body's
-quaternion is its parent's times fixed 4 x 4 maps (the body offset, the joint's cosine and sine
-parts), and rotations of constant vectors and the frames' 3 x 3 matrices are fixed quadratic
-forms of the quaternion. Each product is written as a broadcast multiply and a sum, which XLA
-fuses (a `dot` would become a library matrix product per body on a GPU), so a body costs about
-twenty array operations.
+loop over the static chain on quaternions, each step an array operation rather than a scalar
+formula: a body's quaternion is its parent's times fixed 4 x 4 maps (the body offset, the
+joint's cosine and sine parts), its origin the parent's plus the rotated (constant) offset; the
+3 x 3 matrices of all bodies follow in one vectorised formula. Products with constants are
+written as a broadcast multiply and a sum, which XLA fuses (a `dot` would become a library
+matrix product per body on a GPU). A body costs about twenty array operations.
 """
 
 from __future__ import annotations
@@ -40,35 +40,11 @@ def _right_product(b: np.ndarray) -> np.ndarray:
     return out
 
 
-def _rotation_form() -> np.ndarray:
-    """float64[3, 3, 4, 4]: `R[i, j] = q' F[i, j] q`, the rotation matrix of a unit wxyz
-    quaternion `q` as quadratic forms (the homogeneous formula: no `1 -` terms)."""
-    w, x, y, z = range(4)
-    form = np.zeros((3, 3, 4, 4))
-    squares = {0: (1, 1, -1, -1), 1: (1, -1, 1, -1), 2: (1, -1, -1, 1)}
-    for i, signs in squares.items():
-        form[i, i] = np.diag(signs)
-    products = {  # R[i, j] = 2 (q_a q_b + sign q_c q_d)
-        (0, 1): (x, y, -1, w, z), (1, 0): (x, y, 1, w, z),
-        (0, 2): (x, z, 1, w, y), (2, 0): (x, z, -1, w, y),
-        (1, 2): (y, z, -1, w, x), (2, 1): (y, z, 1, w, x),
-    }
-    for (i, j), (a, b, sign, c, d) in products.items():
-        form[i, j, a, b] = form[i, j, b, a] = 1.0
-        form[i, j, c, d] = form[i, j, d, c] = sign
-    return form
-
-
-ROTATION_FORM = _rotation_form()
-
-
-def _quadratic(form: np.ndarray, outer: jax.Array) -> jax.Array:
-    """`q' form[...] q` from `outer = q q'` (float[4, 4]): float[...]."""
-    return jnp.sum(jnp.asarray(form, jnp.float32) * outer, axis=(-2, -1))
-
-
-def _outer(q: jax.Array) -> jax.Array:
-    return q[:, None] * q[None, :]
+def _rotate_fixed(q: jax.Array, vec: np.ndarray) -> jax.Array:
+    """float[3]: the constant vector `vec` rotated by the unit wxyz quaternion `q`."""
+    vec = jnp.asarray(vec, jnp.float32)
+    twice = 2.0 * jnp.cross(q[1:], vec)
+    return vec + q[0] * twice + jnp.cross(q[1:], twice)
 
 
 def _rotate(mat: jax.Array, vec: np.ndarray) -> jax.Array:
@@ -82,8 +58,14 @@ def _compose(mat: jax.Array, fixed: np.ndarray) -> jax.Array:
 
 
 def quat_to_mat(q: jax.Array) -> jax.Array:
-    """float[3, 3] world <- body of a unit wxyz quaternion."""
-    return _quadratic(ROTATION_FORM, _outer(q))
+    """float[..., 3, 3] world <- body of unit wxyz quaternions `q: float[..., 4]`."""
+    w, x, y, z = (q[..., i] for i in range(4))
+    rows = (
+        (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+        (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+        (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
+    )
+    return jnp.stack([jnp.stack(row, axis=-1) for row in rows], axis=-2)
 
 
 class Frames(NamedTuple):
@@ -114,17 +96,15 @@ class ChainKinematics:
         if model.nmocap:
             raise ValueError("ChainKinematics does not support mocap bodies")
         self.model = model
-        # per body: the quaternion maps q_parent -> q_parent * offset (4 rows), then with a joint
-        # q_parent -> q_parent * offset * (0, axis) (4 more); the offset's world rotation form
-        self._quat_maps, self._offset_form = [None], [None]
+        # per body, the linear maps of the parent's quaternion: q -> q * offset (4 rows), and
+        # with a joint q -> q * offset * (0, axis) (4 more rows)
+        self._quat_maps = [None]
         for b in range(1, model.nbody):
             offset = _right_product(model.body_quat[b])
             if model.body_jntnum[b]:
                 axis = model.jnt_axis[model.body_jntadr[b]]
                 offset = np.concatenate([offset, _right_product(np.r_[0.0, axis]) @ offset])
             self._quat_maps.append(offset)
-            self._offset_form.append(np.einsum("ijab,j->iab", ROTATION_FORM, model.body_pos[b]))
-        self._axis_form = np.einsum("ijab,nj->niab", ROTATION_FORM, model.jnt_axis)
         self._ibody_mat = [_quat_to_mat(q) for q in model.body_iquat]
         self._geom_mat = [_quat_to_mat(q) for q in model.geom_quat]
         self._site_mat = [_quat_to_mat(q) for q in model.site_quat]
@@ -134,12 +114,10 @@ class ChainKinematics:
         composed as MJX does (so the quaternions' signs are MJX's)."""
         m = self.model
         quat = [jnp.asarray([1.0, 0.0, 0.0, 0.0])]
-        outer = [_outer(quat[0])]
         pos = [jnp.zeros(3)]
         for b in range(1, m.nbody):
             parent = m.body_parentid[b]
-            # parent rotation applied to the body offset: a quadratic form of the parent quaternion
-            p = pos[parent] + _quadratic(self._offset_form[b], outer[parent])
+            p = pos[parent] + _rotate_fixed(quat[parent], m.body_pos[b])
             parts = jnp.sum(jnp.asarray(self._quat_maps[b], jnp.float32) * quat[parent], axis=-1)
             if m.body_jntnum[b]:  # q * offset * (cos h, sin h axis): cosine and sine parts
                 adr = m.jnt_qposadr[m.body_jntadr[b]]
@@ -152,15 +130,12 @@ class ChainKinematics:
             p, q = jax.lax.optimization_barrier((p, q))
             pos.append(p)
             quat.append(q)
-            outer.append(_outer(q))
-        outer = jnp.stack(outer)
-        xpos = jnp.stack(pos)
+        xpos, xquat = jnp.stack(pos), jnp.stack(quat)
+        xmat = quat_to_mat(xquat)
         joint_bodies = np.asarray(m.jnt_bodyid)
-        # a hinge's axis is fixed in its body, so its world axis is a quadratic form of the body's
-        # quaternion after the joint's own rotation too
-        xaxis = _quadratic(self._axis_form, outer[joint_bodies][:, None])
-        return Frames(xpos, jnp.stack(quat), _quadratic(ROTATION_FORM, outer[:, None, None]),
-                      xpos[joint_bodies], xaxis)
+        # a hinge's axis is fixed in its body (the joint's own rotation leaves it alone)
+        xaxis = _rotate(xmat[joint_bodies], m.jnt_axis)
+        return Frames(xpos, xquat, xmat, xpos[joint_bodies], xaxis)
 
     def fill(self, data: mjx.Data) -> mjx.Data:
         """`data` with `xpos, xquat, xmat, xanchor, xaxis, xipos, ximat, geom_xpos, geom_xmat,
