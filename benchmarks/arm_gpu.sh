@@ -8,9 +8,10 @@
 #
 # Each part has its own time limit, cut further so that the whole script ends by ARM_GPU_SECONDS
 # (default 530 s); a part with under 20 s left is skipped. Parts share JAX's persistent compilation
-# cache (the layout bank's program, the resets). Expected on one H100, not yet measured: the CPU
-# compile of each throughput program fell from 43-51 s to 20-25 s (2-core CPU, batch 8), so each
-# throughput part should take 60-120 s. Writes $OUT/results.md (throughput rows),
+# cache (the layout bank's program, the resets). Not yet measured on a GPU: on a 2-core CPU
+# (batch 8, load ~3) the compile of each throughput program fell from 43 s / 51 s (modes 0 / 1) to
+# 22.5 s / 22.6 s and its StableHLO from 34k / 44k to 15k / 16k operations, so each throughput part
+# is expected to take 60-120 s here (it timed out at 140 s before). Writes $OUT/results.md,
 # $OUT/arm_checks_gains.json, $OUT/arm_checks.json and $OUT/log:
 #
 #   source benchmarks/device_prelude.sh && bash benchmarks/arm_gpu.sh 2>&1 | tee $OUT/log
