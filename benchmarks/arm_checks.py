@@ -1,7 +1,8 @@
 """GPU-scale checks of the arm world: no NaN over long saturated rollouts, the per-joint
 tracking gains under uniform random actions at a large batch (the reference's measurement), and
 where the compile time goes (`--parts compile`: each piece of the env step lowered and compiled
-alone, with the persistent compilation cache off).
+alone, with the persistent compilation cache off), and what MJX's line-search length costs and
+changes (`--parts linesearch`).
 
     python benchmarks/arm_checks.py --batch 4096 --steps 1000 --out arm_checks.json
     python benchmarks/arm_checks.py --parts compile --compile-batch 4 --out arm_compile.json
@@ -98,6 +99,60 @@ def tracking_gains(num_envs: int, num_steps: int) -> dict:
     return out
 
 
+def line_search(num_envs: int, num_steps: int, lengths: list[int]) -> dict:
+    """The physics step with MJX's constraint solver at other line-search lengths
+    (`opt.ls_iterations`, the model's 50): MJX runs every line search as a scan of that many
+    iterations (no-ops after convergence, which under `vmap` still cost a full iteration), so
+    the length sets much of a substep's time while results should not depend on it.
+
+    A rollout of `num_steps` saturated random actions at `num_envs` arms with each length
+    (ms per env step after compile); then one env step from every state of the 50-iteration
+    rollout with each length: how many states give bit-identical joint angles and the largest
+    difference (rad)."""
+    import copy
+
+    from specrl_jax.envs.arm import model as arm_model
+    from specrl_jax.envs.arm.physics import Physics
+
+    def physics(length: int) -> Physics:
+        model = copy.deepcopy(arm_model.load_model())
+        model.opt.ls_iterations = length
+        return Physics(model, arm_model.FORCE_LIMITS)
+
+    actions = jnp.sign(jax.random.uniform(jax.random.key(3), (num_steps, num_envs, 7),
+                                          minval=-1, maxval=1))
+    start_state = jax.vmap(Physics.init, in_axes=(None, 0))(
+        physics(50), jnp.tile(jnp.asarray(NEUTRAL_QPOS, jnp.float32), (num_envs, 1)))
+    out, visited, last = {}, [], {}
+    for length in [50, *[n for n in lengths if n != 50]]:
+        p = physics(length)
+        step = jax.jit(jax.vmap(lambda s, a, p=p: p.step(s, s.qpos + 0.05 * a)))
+        start = time.perf_counter()
+        state = jax.block_until_ready(step(start_state, actions[0]))
+        compile_s = time.perf_counter() - start
+        state = start_state
+        start = time.perf_counter()
+        for t in range(num_steps):
+            if length == 50:
+                visited.append(state)
+            state = step(state, actions[t])
+        jax.block_until_ready(state)
+        out[length] = {"ms_per_env_step": 1000 * (time.perf_counter() - start) / num_steps,
+                       "first_call_s": compile_s}
+        last[length] = step
+        log(f"line search {length}: {json.dumps(out[length])}")
+    states = jax.tree.map(lambda *x: jnp.concatenate(x), *visited)
+    flat_actions = actions.reshape(-1, 7)
+    reference = np.asarray(last[50](states, flat_actions).qpos)
+    for length, row in out.items():
+        if length != 50:
+            diff = np.abs(np.asarray(last[length](states, flat_actions).qpos) - reference).max(1)
+            row.update(states=int(diff.size), identical=int((diff == 0).sum()),
+                       max_abs_dq=float(diff.max()))
+            log(f"line search {length} against 50: {json.dumps(row)}")
+    return out
+
+
 PIECES = ("kinematics", "substep", "physics_step", "observe_mode0", "observe_mode1", "ik",
           "keepout_test", "exact_reset", "layout_bank_256", "step_mode0", "rollout_bank_mode0",
           "rollout_bank_mode1", "rollout_exact_mode0")
@@ -184,8 +239,11 @@ def main() -> None:
     parser.add_argument("--bank-size", type=int, default=4096)
     parser.add_argument("--gain-batch", type=int, default=256)
     parser.add_argument("--gain-steps", type=int, default=400)
-    parser.add_argument("--parts", nargs="+", choices=("gains", "nan", "compile"),
+    parser.add_argument("--parts", nargs="+", choices=("gains", "nan", "compile", "linesearch"),
                         default=("gains", "nan"))
+    parser.add_argument("--ls-batch", type=int, default=4096)
+    parser.add_argument("--ls-steps", type=int, default=20)
+    parser.add_argument("--ls-lengths", type=int, nargs="+", default=[10, 5])
     parser.add_argument("--compile-batch", type=int, default=4)
     parser.add_argument("--compile-steps", type=int, default=50)
     parser.add_argument("--pieces", nargs="+", choices=PIECES, default=None,
@@ -211,6 +269,10 @@ def main() -> None:
         results["compile"] = {"batch": args.compile_batch, "steps": args.compile_steps}
         results["compile"].update(compile_pieces(args.compile_batch, args.compile_steps,
                                                  args.pieces))
+        save()
+    if "linesearch" in args.parts:
+        log(f"line search: {args.ls_batch} arms x {args.ls_steps} saturated steps")
+        results["linesearch"] = line_search(args.ls_batch, args.ls_steps, args.ls_lengths)
         save()
     if "nan" in args.parts:
         for env_id in ("PandaLTLReach0Joints-v0", "PandaLTLReach1Joints-v0"):
