@@ -165,9 +165,11 @@ def make_policy(method: str, world: Any, method_obj: Any, deterministic: bool | 
 def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episodes: int,
              log: Callable[[str], None] = print, deterministic: bool | None = None,
              label: str | None = None, horizon: int | None = None,
-             env_options: dict[str, Any] | None = None, **policy_options: Any) -> list:
+             env_options: dict[str, Any] | None = None, devices: Sequence[Any] | None = None,
+             **policy_options: Any) -> list:
     """Evaluate every trained seed (leading axis of `params`, seed i + 1 for entry i) on `suites`
-    (`eval.suites.evaluate_suites`: infinite suites over 10 finite horizons unless `horizon`).
+    (`eval.suites.evaluate_suites`: infinite suites over 10 finite horizons unless `horizon`;
+    episodes sharded over `devices`, default every local device).
     Returns `SuiteResult`s with one row per trained seed."""
     from specrl_jax.eval.suites import evaluate_suites
 
@@ -183,7 +185,7 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
     return evaluate_suites(
         policy, env_id, world, env_params, suites, episodes, seeds=range(1, num_seeds + 1),
         policy_params=params, params_per_seed=True, horizon=horizon,
-        label=label or METHOD_NAMES[method], log=log,
+        label=label or METHOD_NAMES[method], log=log, devices=devices,
     )
 
 

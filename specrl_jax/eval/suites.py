@@ -62,7 +62,8 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
                     episodes: int, seeds: Sequence[int], policy_params: Any = None,
                     params_per_seed: bool = False, horizon: int | None = None,
                     infinite_horizon: int | None = None, label: str = "",
-                    log: Callable[[str], None] = print) -> list[SuiteResult]:
+                    log: Callable[[str], None] = print,
+                    devices: Sequence[Any] | None = None) -> list[SuiteResult]:
     """Evaluate `policy` on every suite; one compiled program runs each group of suites that
     share a horizon (the specs and the horizon are its arguments).
 
@@ -74,6 +75,7 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
             axis of `len(seeds)` whose entry i serves seed i (one trained run per seed).
         horizon: overrides every suite's horizon; infinite_horizon: only the infinite suites'.
         label: the method name in the reports.
+        devices: the episodes are sharded over these (default: every local device).
 
     Returns:
         One `SuiteResult` per suite, in the order given.
@@ -94,14 +96,18 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
     compiled = automata.stack(
         [automata.compile_spec(f, env.propositions, alphabet=env.alphabet) for f in formulas])
     # One program for every horizon: the group's specs and its horizon are arguments, each
-    # group padded to the largest by repeating its last spec.
+    # group padded to the largest by repeating its last spec. A lone group keeps its horizon
+    # fixed at compile time (a scan, faster than the while loop of a traced horizon).
     width = max(len(group_specs) for _, group_specs, _ in groups)
-    evaluator = make_evaluator(policy, TaskEnv(env, compiled), params, episodes_per_seed=episodes,
-                               original=originals(formulas, env), params_per_seed=params_per_seed)
+    evaluator = make_evaluator(policy, TaskEnv(env, compiled),
+                               params.replace(max_steps=groups[0][0]), episodes_per_seed=episodes,
+                               original=originals(formulas, env), params_per_seed=params_per_seed,
+                               devices=devices)
 
     def arguments(steps: int, group_specs: list[int]) -> tuple:
         padded = group_specs + group_specs[-1:] * (width - len(group_specs))
-        return policy_params, seed_array, jnp.asarray(padded, jnp.int32), jnp.int32(steps)
+        horizon_argument = None if len(groups) == 1 else jnp.int32(steps)
+        return policy_params, seed_array, jnp.asarray(padded, jnp.int32), horizon_argument
 
     start = time.perf_counter()
     executable = evaluator.lower(*arguments(*groups[0][:2])).compile()
