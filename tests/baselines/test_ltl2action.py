@@ -65,6 +65,19 @@ def test_rgcn_matches_a_per_node_numpy_transcription():
         np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5)
 
 
+def test_rgcn_relation_weights_start_as_dgl_043_relgraphconv():
+    """DGL 0.4.3: `xavier_uniform_(weight[4, 64, 32], gain=calculate_gain('relu'))`; PyTorch's
+    fans of a 3-D tensor are fan_in = 64 * 32, fan_out = 4 * 32, so the bound is
+    sqrt(2) * sqrt(6 / 2176) = 0.07426 (flax's fan_avg convention would give 0.177)."""
+    _, params = _encoder()
+    weight = np.asarray(params["params"]["relation_kernel"])
+    bound = 0.074261
+    assert weight.shape == (4, 64, 32)
+    assert 0.99 * bound < np.abs(weight).max() <= bound
+    np.testing.assert_allclose(weight.std(), bound / np.sqrt(3), rtol=0.03)
+    np.testing.assert_array_equal(np.asarray(params["params"]["relation_bias"]), 0.0)
+
+
 def test_rgcn_is_invariant_to_node_order_and_padding_but_not_to_edge_types():
     encoder, params = _encoder()
     tokens, parent, edge = _graph("!a U (b & F c)")
