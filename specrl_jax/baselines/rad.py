@@ -6,11 +6,12 @@ Training: the task loop runs a `tasks.dfa_source.DFASource` over a bank of RAD c
 world's alphabet); +1 and the end of the episode when every DFA accepts, -1 and the end when
 one can no longer accept. Every observation carries the 32-d embedding of the advanced,
 minimised conjunction by the pretrained GATv2 encoder (`rad_encoder`, parameters shipped in
-`baselines/data/rad_encoder_<family>.msgpack`, made by `benchmarks/rad_pretrain.py`), computed in
-the task loop with the encoder frozen (the original's `--freeze`), so PPO never backpropagates
-into it. The network is LTL2Action's: observation encoder (grid CNN, vector MLP [128, 64] ReLU,
-image CNN) concatenated with the embedding, actor [64, 64, 64] ReLU, critic [64, 64] Tanh,
-dense layers with unit-norm weight vectors and zero biases.
+`baselines/data/rad_encoder_<family>.msgpack`, made by `benchmarks/rad_pretrain.py`), frozen (the
+original's `--freeze`), so PPO never backpropagates into it. Being frozen, the encoder runs once
+per reachable state of the bank when the method is built (`rad_table`), and the task loop reads
+the embedding off that table. The network is LTL2Action's: observation encoder (grid CNN,
+vector MLP [128, 64] ReLU, image CNN) concatenated with the embedding, actor [64, 64, 64] ReLU,
+critic [64, 64] Tanh, dense layers with unit-norm weight vectors and zero biases.
 
 Test time (`make_policy`): the evaluated specs are the project's compiled automata; each
 co-safe spec becomes its minimal DFA of good prefixes (`rad_sampler.bank_of_specs`) and the
@@ -22,6 +23,8 @@ policy given such a spec raises ValueError.
 from __future__ import annotations
 
 import dataclasses
+import functools
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, NamedTuple
 
@@ -33,12 +36,18 @@ import numpy as np
 from specrl_jax import specs
 from specrl_jax.automata import rad_sampler
 from specrl_jax.automata.rad_sampler import DFABank
-from specrl_jax.baselines import rad_pretrain
+from specrl_jax.baselines import rad_pretrain, rad_table
 from specrl_jax.baselines.encoders import check_kinds, obs_parts
 from specrl_jax.baselines.ltl2action import embedding_actor_critic
 from specrl_jax.baselines.ppo.networks import PolicyOutput
 from specrl_jax.baselines.ppo.train import PPOConfig, world_config
-from specrl_jax.baselines.rad_encoder import GraphBank, RADEncoder, build_graphs, graph_of
+from specrl_jax.baselines.rad_encoder import (
+    GraphBank,
+    RADEncoder,
+    build_graphs,
+    graph_of,
+    packing_allowance,
+)
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.tasks import TaskEnv
 from specrl_jax.tasks.dfa_source import DFASource
@@ -77,20 +86,51 @@ def network_for(world: Any, encoder: str = "letter") -> RADNetwork:
     return RADNetwork(int(space.shape[0]), encoder, continuous=True)
 
 
+def frozen_encoder(encoder_params: Any, num_layers: int = 8,
+                   packing: tuple[float, ...] | None = None) -> RADEncoder:
+    """The encoder of `encoder_params` (widths read off them) with `num_layers` rounds of the
+    shared layer (the original's 8), encoding batches packed by `packing` if given."""
+    p = encoder_params["params"]
+    return RADEncoder(hidden=int(np.shape(p["embed"]["kernel"])[-1]), num_layers=num_layers,
+                      out=int(np.shape(p["readout"]["kernel"])[-1]), packing=packing)
+
+
 def embedder(encoder_params: Any, graphs: GraphBank, bank: DFABank, num_layers: int = 8
              ) -> Callable[[jax.Array, jax.Array], jax.Array]:
     """`embed(index, q) -> float32[32]`: the frozen embedding of conjunction `index` of `bank`
-    at states `q` int32[N] (one task). Widths are read off the parameters; `num_layers` is the
-    number of rounds of the shared layer (the original's 8)."""
-    p = encoder_params["params"]
-    encoder = RADEncoder(hidden=int(np.shape(p["embed"]["kernel"])[-1]), num_layers=num_layers,
-                         out=int(np.shape(p["readout"]["kernel"])[-1]))
+    at states `q` int32[N] (one task), by the encoder of `num_layers` rounds."""
+    encoder = frozen_encoder(encoder_params, num_layers)
 
     def embed(index, q):
         graph = graph_of(graphs, bank, index, q)
         return jax.lax.stop_gradient(encoder.apply(encoder_params, graph))
 
     return embed
+
+
+def bank_embedder(encoder_params: Any, graphs: GraphBank, bank: DFABank, num_layers: int = 8,
+                  max_table_rows: int = rad_table.MAX_TABLE_ROWS
+                  ) -> Callable[[jax.Array, jax.Array], jax.Array]:
+    """`embedder`'s `embed`, read from a table of every reachable state tuple of `bank` encoded
+    once (`rad_table`, the encoder batched and packed), so no step runs the encoder. Where the
+    table would exceed `max_table_rows` rows, `embed` itself with a warning (0: always).
+    """
+    embed = embedder(encoder_params, graphs, bank, num_layers)
+    if max_table_rows <= 0:
+        return embed
+    encoder = frozen_encoder(encoder_params, num_layers, packing_allowance(graphs, bank))
+
+    def encode(index, q):  # index int32[B], q int32[B, N]
+        graph = jax.vmap(graph_of, in_axes=(None, None, 0, 0))(graphs, bank, index, q)
+        return encoder.apply(encoder_params, graph)
+
+    try:
+        table = rad_table.build_table(bank, encode, max_table_rows)
+    except ValueError as err:
+        warnings.warn(f"RAD-Embeddings: {err}; running the encoder every step instead",
+                      stacklevel=2)
+        return embed
+    return functools.partial(rad_table.lookup, table)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -122,22 +162,36 @@ def training_bank(alphabet: np.ndarray, bank_size: int = DEFAULT_BANK_SIZE, seed
     return _BANKS[key]
 
 
+#: the embedders of training banks under shipped encoders, built once per process (a table
+#: takes seconds on a GPU, minutes on a CPU; training, evaluation and loading each build the method)
+_EMBEDDERS: dict[tuple, Callable[[jax.Array, jax.Array], jax.Array]] = {}
+
+
 def make_method(world: Any, params: Any, family: str = "letter", bank: DFABank | None = None,
                 bank_size: int = DEFAULT_BANK_SIZE, seed: int = 0,
                 encoder: str | None = None, encoder_params: Any = None,
-                encoder_layers: int = 8) -> RAD:
+                encoder_layers: int = 8, max_table_rows: int = rad_table.MAX_TABLE_ROWS) -> RAD:
     """RAD on any single-agent world: a bank of RAD conjunctions (or `bank`), embedded by the
     frozen encoder `encoder` (default: the shipped one of `family`; or `encoder_params` of
-    `encoder_layers` rounds)."""
+    `encoder_layers` rounds). The embeddings of the bank's reachable states are encoded once
+    into a table, or every step where it would exceed `max_table_rows` rows (`bank_embedder`)."""
     alphabet = np.asarray(world.alphabet, bool)
     encoder = family if encoder is None else encoder
+    shared = bank is None and encoder_params is None
+    cache_key = (alphabet.tobytes(), alphabet.shape, bank_size, seed, encoder, encoder_layers,
+                 max_table_rows)
     if encoder_params is None:
         encoder_params = rad_pretrain.load_encoder(encoder, alphabet.shape[0])
     if bank is None:
         bank, graphs = training_bank(alphabet, bank_size, seed)
     else:
         graphs = build_graphs(bank)
-    embed = embedder(encoder_params, graphs, bank, encoder_layers)
+    if shared and cache_key in _EMBEDDERS:
+        embed = _EMBEDDERS[cache_key]
+    else:
+        embed = bank_embedder(encoder_params, graphs, bank, encoder_layers, max_table_rows)
+        if shared:
+            _EMBEDDERS[cache_key] = embed
     kinds = dict(world.obs_kinds)
 
     def observe(obs, state):
@@ -176,12 +230,14 @@ def usable_suites(suites: Sequence[str], log: Callable[[str], None] = print) -> 
 
 def make_policy(network: RADNetwork, alphabet: jax.Array, obs_kinds: Mapping[str, str],
                 deterministic: bool = False, encoder_params: Any = None,
-                encoder_layers: int = 8) -> Callable[..., jax.Array]:
+                encoder_layers: int = 8, max_table_rows: int = rad_table.MAX_TABLE_ROWS
+                ) -> Callable[..., jax.Array]:
     """RAD's test-time agent: `policy(params, obs, task_state, key) -> action` for
     `specrl_jax.eval.evaluate`. The evaluated bank of compiled specs becomes a bank of DFAs once
-    (at trace time); each step embeds the DFA at the state the task loop's automaton state
-    maps to. Actions are sampled, or the mode where `deterministic`. The frozen encoder is
-    `network.encoder`'s unless `encoder_params` (of `encoder_layers` rounds) are given.
+    (at trace time), and the embedding of each of their states a table row (`bank_embedder`,
+    per step above `max_table_rows` rows); each step reads the DFA at the state the task loop's
+    automaton state maps to. Actions are sampled, or the mode where `deterministic`. The frozen
+    encoder is `network.encoder`'s unless `encoder_params` (of `encoder_layers` rounds) are given.
 
     Raises:
         ValueError (when traced): an evaluated spec is not co-safe.
@@ -196,8 +252,8 @@ def make_policy(network: RADNetwork, alphabet: jax.Array, obs_kinds: Mapping[str
         if spec_bank not in banks:
             with jax.ensure_compile_time_eval():
                 bank, state_map = rad_sampler.bank_of_specs(spec_bank.specs)
-                banks[spec_bank] = (embedder(encoder_params, build_graphs(bank), bank,
-                                             encoder_layers),
+                banks[spec_bank] = (bank_embedder(encoder_params, build_graphs(bank), bank,
+                                                  encoder_layers, max_table_rows),
                                     jnp.asarray(state_map))
         return banks[spec_bank]
 
