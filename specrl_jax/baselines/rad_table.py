@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
+from tqdm.auto import tqdm
 
 from specrl_jax.automata.rad_sampler import DFABank
 
@@ -122,7 +123,11 @@ def encode_tuples(encode: Encode, index: np.ndarray, q: np.ndarray,
     pad = -count % chunk
     index = np.concatenate([index, np.full(pad, index[0], index.dtype)])
     q = np.concatenate([q, np.repeat(q[:1], pad, axis=0)])
-    out = [batch(index[i:i + chunk], q[i:i + chunk]) for i in range(0, count + pad, chunk)]
+    starts = range(0, count + pad, chunk)
+    # minutes on a laptop CPU for a default bank: show progress on a terminal
+    shown = tqdm(starts, desc="RAD: encoding reachable DFA states", unit="chunk",
+                 disable=True if len(starts) < 8 else None)
+    out = [jax.block_until_ready(batch(index[i:i + chunk], q[i:i + chunk])) for i in shown]
     return jnp.concatenate(out)[:count]
 
 
