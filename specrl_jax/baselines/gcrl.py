@@ -417,7 +417,8 @@ def safe_action(network: nn.Module, out: PolicyOutput, goal: jax.Array, avoid: j
     When some avoided proposition has `V(s, p) > value_threshold` and above the goal's value,
     turn away from the most dangerous one: with direction primitives, the sum of the primitive
     least likely toward it and the goal's best primitive other than the one most likely toward
-    it (the original's); on a grid, that goal move alone; with a continuous head, the goal's
+    it (the original's: the two clipped mean actions summed, times the test temperature 1.5,
+    clipped); on a grid, that goal move alone; with a continuous head, the goal's
     mean action minus the danger's. Otherwise the goal's mode (`deterministic`) or a sample.
     `goal` int32[] (-1: none; then only the turn away, when there is a danger). `primitives`,
     `sensors`: the primitives' parameters and the robot sensors, for a primitive network.
@@ -440,10 +441,12 @@ def safe_action(network: nn.Module, out: PolicyOutput, goal: jax.Array, avoid: j
         return jnp.where(turn, jnp.where(has_goal, other, safe), chosen).astype(chosen.dtype)
     action_dim = primitives["params"]["log_std"].shape[-1]
     prim = primitives_lib.PrimitiveNetwork(action_dim)
-    move = lambda i: primitives_lib.primitive_action(prim, primitives, i, sensors,
-                                                     primitives_lib.EVAL_TEMPERATURE)
-    composed = jnp.clip(jnp.where(has_goal, move(other), 0.0) + move(safe), -1.0, 1.0)
-    return jnp.where(turn, composed, move(chosen))
+    move = lambda i, t: primitives_lib.primitive_action(prim, primitives, i, sensors, t)
+    temperature = primitives_lib.EVAL_TEMPERATURE
+    # the original sums the two primitives' actions (each clipped to the box) before scaling
+    summed = jnp.where(has_goal, move(other, 1.0), 0.0) + move(safe, 1.0)
+    composed = jnp.clip(temperature * summed, -1.0, 1.0)
+    return jnp.where(turn, composed, move(chosen, temperature))
 
 
 def _sensors(network: nn.Module, obs: Mapping[str, jax.Array]) -> jax.Array | None:

@@ -1,0 +1,64 @@
+"""Where GCRL-LTL's finite-suite episodes end: success, violation, the world's own termination
+(a Zone wall) or the time limit, under test-time variants of the agent.
+
+Variants: the reference agent (mode primitive choice, safety rule at 0.85), the safety rule off
+(threshold 2: critic values never exceed it), sampled primitive choice. Reads the parameters
+that `train_baselines.py` writes (`<out>/gcrl/params.msgpack`, leading seed axis).
+
+Example (GPU, after `train_baselines.py --methods gcrl --env PointLTL0-v0 --out /tmp/zone`):
+    python benchmarks/gcrl_outcomes.py /tmp/zone/gcrl/params.msgpack --seeds 5 --episodes 100
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from specrl_jax.baselines import experiment
+from specrl_jax.eval.metrics import EpisodeTable
+
+VARIANTS = {
+    "reference": {},
+    "no safety rule": {"value_threshold": 2.0},
+    "sampled choice": {"deterministic": False},
+}
+
+
+def outcomes(table: EpisodeTable, horizon: int) -> dict[str, float]:
+    """Fractions of episodes (all seeds and specs) by how they ended; `wall` = neither success
+    nor violation before the horizon (the world terminated it)."""
+    success, violation = np.asarray(table.success), np.asarray(table.violation)
+    other = ~success & ~violation
+    ended_early = np.asarray(table.steps) < horizon
+    return {"success": float(success.mean()), "violation": float(violation.mean()),
+            "wall": float((other & ended_early).mean()),
+            "timeout": float((other & ~ended_early).mean())}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("params", help="params.msgpack of a GCRL-LTL run (leading seed axis)")
+    parser.add_argument("--env", default="PointLTL0-v0")
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--episodes", type=int, default=100)
+    parser.add_argument("--suites", nargs="+", default=None, help="default: the finite suites")
+    parser.add_argument("--horizon", type=int, default=None, help="default: the world's")
+    args = parser.parse_args()
+
+    suites = args.suites or [s for s in experiment.suites_for(args.env) if "/finite/" in s]
+    params = experiment.load_params("gcrl", args.env, args.params, args.seeds)
+    rows = []
+    for name, options in VARIANTS.items():
+        results = experiment.evaluate("gcrl", args.env, params, suites, args.episodes,
+                                      log=lambda _: None, horizon=args.horizon, **options)
+        for r in results:
+            row = {"variant": name, "suite": r.suite,
+                   **outcomes(r.result.table, r.result.horizon)}
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+
+
+if __name__ == "__main__":
+    main()
