@@ -28,7 +28,9 @@ from specrl_jax.baselines.ppo.networks import (
     critic,
 )
 from specrl_jax.baselines.ppo.train import PPOConfig, world_config
+from specrl_jax.baselines.scoring import score_chosen
 from specrl_jax.baselines.train_env import TaskTrainEnv
+from specrl_jax.envs.wrappers import select_tree
 from specrl_jax.specs import CurriculumSampler, curriculum
 from specrl_jax.tasks import SequenceSource, StatefulPolicy, TaskEnv
 
@@ -237,7 +239,8 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: dict[str, st
 
     `value_threshold` (the original's 0.4): the chosen sequence's first avoid set also gets every
     other non-self-loop transition whose best candidate value is more than this below the chosen
-    one's (`threshold_avoid`); None keeps the precomputed avoid sets only.
+    one's (`threshold_avoid`); None keeps the precomputed avoid sets only. A plan scores the
+    valid candidates only, and none when no plan is due (`scoring.score_chosen`).
     """
     alphabet = jnp.asarray(alphabet, bool)
     kinds = dict(obs_kinds)
@@ -254,23 +257,28 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: dict[str, st
         return SequenceObs(obs_parts(obs, kinds), seq.reach, avoid, seq.epsilon, jnp.int32(0),
                            length, allowed)
 
-    def plan(params, obs, task_state):
+    def plan(params, obs, task_state, due):
+        """A new `SeqCarry` (meaningless where `due` bool[] is False)."""
         spec, q = task_state.spec, task_state.q
-        num = spec.seq_valid.shape[1]
         no_extra = jnp.zeros(alphabet.shape[0], bool)
-        cands = jax.vmap(lambda c: seq_obs(obs, task_state, c, no_extra))(jnp.arange(num))
-        values = network.apply(params, cands).value
         valid = spec.seq_valid[q]
+
+        def value(ids):
+            cands = jax.vmap(lambda c: seq_obs(obs, task_state, c, no_extra))(ids)
+            return network.apply(params, cands).value
+
+        values = score_chosen(value, valid & due)
         best = jnp.argmax(jnp.where(valid, values, -jnp.inf)).astype(jnp.int32)
         extra = no_extra if value_threshold is None else threshold_avoid(
             spec, q, values, valid, best, value_threshold)
         return SeqCarry(q, best, extra)
 
     def init(params, obs, task_state, key):
-        return plan(params, obs, task_state)
+        return plan(params, obs, task_state, jnp.ones((), bool))
 
     def apply(params, obs, task_state, carry: SeqCarry, key):
-        carry = jax.lax.cond(task_state.q != carry.q, lambda: plan(params, obs, task_state), lambda: carry)
+        due = task_state.q != carry.q
+        carry = select_tree(due, plan(params, obs, task_state, due), carry)
         pi = network.apply(params, seq_obs(obs, task_state, carry.candidate, carry.extra_avoid)).pi
         action, take_epsilon = split(pi.mode() if deterministic else pi.sample(key))
         spec = task_state.spec

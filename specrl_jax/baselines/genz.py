@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
+from functools import partial
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -34,7 +35,9 @@ from specrl_jax.baselines.ppo.networks import (
     critic,
 )
 from specrl_jax.baselines.ppo.train import PPOConfig, world_config
+from specrl_jax.baselines.scoring import score_chosen
 from specrl_jax.baselines.train_env import TaskTrainEnv
+from specrl_jax.envs.wrappers import select_tree
 from specrl_jax.specs import CurriculumSampler, curriculum
 from specrl_jax.tasks import SequenceSource, StatefulPolicy, TaskEnv
 
@@ -195,6 +198,19 @@ class PlanCarry(NamedTuple):
     stuck: jax.Array  # bool[], no candidate left: the episode is given up
 
 
+def _first_pairs(spec: Any, q: jax.Array, alphabet: jax.Array
+                 ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """The first reach-avoid pair of each candidate sequence in state `q` as letter masks:
+    `(reach bool[C, P], avoid bool[C, P], usable bool[C])` (see `candidate_masks`)."""
+    single = alphabet.sum(-1) == 1  # [A]
+    first = pairs(spec, spec.seq_pair[q, :, 0]).epsilon.astype(jnp.int32)  # [C], first non-epsilon pair
+    pair = pairs(spec, jnp.take_along_axis(spec.seq_pair[q], first[:, None], axis=1)[:, 0])
+    usable = spec.seq_valid[q] & (first < spec.seq_length[q])
+    reach_props = jnp.any((pair.reach & single)[..., None] & alphabet, axis=1)  # [C, P]
+    avoid_props = jnp.any((pair.avoid & single)[..., None] & alphabet, axis=1)  # [C, P]
+    return reach_props, avoid_props, usable
+
+
 def candidate_masks(spec: Any, q: jax.Array, alphabet: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
     """GenZ-LTL's candidates in automaton state `q`: the first reach-avoid pair of every path
     the reference's depth-first search finds (the compiled spec's candidate sequences, epsilon
@@ -205,19 +221,34 @@ def candidate_masks(spec: Any, q: jax.Array, alphabet: jax.Array) -> tuple[jax.A
     is no candidate. An avoided empty assignment cannot be drawn in the image and is dropped
     (the reference aborts there; docs/fidelity.md).
     """
-    num_props = alphabet.shape[1]
-    single = alphabet.sum(-1) == 1  # [A]
-    first = pairs(spec, spec.seq_pair[q, :, 0]).epsilon.astype(jnp.int32)  # [C], first non-epsilon pair
-    pair = pairs(spec, jnp.take_along_axis(spec.seq_pair[q], first[:, None], axis=1)[:, 0])
-    reach_sym, avoid_sym = pair.reach & single, pair.avoid & single
-    usable = spec.seq_valid[q] & (first < spec.seq_length[q])
-    reach_props = jnp.any(reach_sym[..., None] & alphabet, axis=1)  # [C, P]
-    avoid_props = jnp.any(avoid_sym[..., None] & alphabet, axis=1)  # [C, P]
-    eye = jnp.eye(num_props, dtype=bool)
-    reach = jnp.broadcast_to(eye, (reach_props.shape[0], num_props, num_props))  # [C, P, P]
-    avoid = jnp.broadcast_to(avoid_props[:, None, :], reach.shape)
+    return _split_letters(*_first_pairs(spec, q, alphabet))
+
+
+def _split_letters(reach_props: jax.Array, avoid_props: jax.Array, usable: jax.Array
+                   ) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """`_first_pairs` -> `candidate_masks`' (reach, avoid, valid)."""
+    num_seqs, num_props = reach_props.shape
+    reach = jnp.broadcast_to(jnp.eye(num_props, dtype=bool), (num_seqs, num_props, num_props))
+    avoid = jnp.broadcast_to(avoid_props[:, None, :], reach.shape)  # [C, P, P]
     valid = usable[:, None] & reach_props & ~avoid_props
     return reach.reshape(-1, num_props), avoid.reshape(-1, num_props), valid.reshape(-1)
+
+
+def first_of_kind(avoid_props: jax.Array, allowed: jax.Array) -> jax.Array:
+    """bool[C*P]: the `allowed` candidates (c, p) whose pair (letter p, avoid set of c) no earlier
+    allowed candidate has. Equal pairs give equal reduced observations, hence equal scores, and
+    argmax takes the first: scoring these alone picks the same candidate.
+
+    Args:
+        avoid_props: bool[C, P], each sequence's avoid letters (`_first_pairs`).
+        allowed: bool[C*P], candidates still open, in `candidate_masks` order.
+    """
+    num_seqs = avoid_props.shape[0]
+    allowed = allowed.reshape(num_seqs, -1)
+    same_avoid = jnp.all(avoid_props[:, None] == avoid_props[None], axis=-1)  # [C, C]
+    earlier = same_avoid & jnp.tri(num_seqs, k=-1, dtype=bool)  # [c, c'] with c' < c
+    taken = jnp.any(earlier[:, :, None] & allowed[None], axis=1)  # [C, P]
+    return (allowed & ~taken).reshape(-1)
 
 
 def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str, str],
@@ -232,24 +263,32 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
     the timer restarts). With no candidate left the agent gives the episode up (`aborted`, the
     reference's `NoPathsException`: neither success nor violation). Actions are the policy's
     mode (`deterministic`, the reference's setting) or samples.
+
+    A plan scores the distinct open candidates only (`first_of_kind`), and none when no plan is
+    due (`scoring.score_chosen`).
     """
     alphabet = jnp.asarray(alphabet, bool)
     obs_kinds = dict(obs_kinds)
 
-    def plan(params, obs, task_state, infeasible, masks):
-        reach, avoid, valid = masks
-        images = jax.vmap(lambda r, a: reduce_observation(obs, obs_kinds, r, a))(reach, avoid)
-        out = network.apply(params, images)
-        score = out.value - out.multiplier * out.cost_value
+    def plan(params, obs, task_state, first, infeasible, due):
+        """A new `PlanCarry` from the `_first_pairs` of the state (meaningless where not `due`)."""
+        reach, avoid, valid = _split_letters(*first)
         allowed = valid & ~infeasible
-        best = jnp.argmax(jnp.where(allowed, score, -jnp.inf))
+
+        def score(ids):
+            images = jax.vmap(partial(reduce_observation, obs, obs_kinds))(reach[ids], avoid[ids])
+            out = network.apply(params, images)
+            return out.value - out.multiplier * out.cost_value
+
+        scores = score_chosen(score, first_of_kind(first[1], allowed) & due)
+        best = jnp.argmax(jnp.where(allowed, scores, -jnp.inf))
         return PlanCarry(task_state.q, reach[best], avoid[best], best.astype(jnp.int32), infeasible,
                          jnp.zeros((), jnp.int32), ~jnp.any(allowed))
 
     def init(params, obs, task_state, key):
-        num = task_state.spec.seq_valid.shape[1] * alphabet.shape[1]
-        masks = candidate_masks(task_state.spec, task_state.q, alphabet)
-        return plan(params, obs, task_state, jnp.zeros(num, bool), masks)
+        first = _first_pairs(task_state.spec, task_state.q, alphabet)
+        num = first[0].size
+        return plan(params, obs, task_state, first, jnp.zeros(num, bool), jnp.ones((), bool))
 
     def apply(params, obs, task_state, carry: PlanCarry, key):
         spec, q = task_state.spec, task_state.q
@@ -259,14 +298,12 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
         give_up = timed_out & ~spec.accepting[q, symbol]
         # A timeout gives up the reach proposition itself (every candidate that shares it), as
         # the reference marks the reach assignment infeasible at the current automaton state.
-        masks = candidate_masks(spec, q, alphabet)
-        same_reach = jnp.all(masks[0] == carry.reach, axis=-1)
+        first = _first_pairs(spec, q, alphabet)
+        same_reach = jnp.all(_split_letters(*first)[0] == carry.reach, axis=-1)
         infeasible = jnp.where(moved, False, carry.infeasible) | (give_up & same_reach)
-        carry = jax.lax.cond(
-            moved | give_up,
-            lambda: plan(params, obs, task_state, infeasible, masks),
-            lambda: carry._replace(steps=jnp.where(timed_out, 0, carry.steps)),
-        )
+        due = moved | give_up
+        carry = select_tree(due, plan(params, obs, task_state, first, infeasible, due),
+                            carry._replace(steps=jnp.where(timed_out, 0, carry.steps)))
         out = network.apply(params, reduce_observation(obs, obs_kinds, carry.reach, carry.avoid))
         action = out.pi.mode() if deterministic else out.pi.sample(key)
         return action, carry._replace(steps=carry.steps + 1)
