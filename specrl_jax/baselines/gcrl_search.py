@@ -187,13 +187,13 @@ def cost_to_go(spec, goal_cost: jax.Array, goal_syms: jax.Array, empty_sym: int,
     ye = graph.empty_next[:, None] * width + jnp.arange(width)[None, :]
     ce = jnp.where(graph.empty_acc[:, None], HOP, jnp.inf)
     close_e = ce * (1 + omega) + omega * dist[ye, xe]  # [S, G]
-    lasso = jnp.minimum(
-        jnp.min(dist[:, x.ravel()] + close.ravel()[None], axis=1),
-        jnp.min(dist[:, xe.ravel()] + close_e.ravel()[None], axis=1),
-    )
+    # x is node xe = q * width + g whatever p: the cheapest closing per node, then the prefix
+    # to it (adding a prefix keeps the order: the same minimum as over every edge)
+    closing = jnp.minimum(jnp.min(close, axis=-1), close_e).reshape(-1)  # [N]
     success = jnp.repeat(spec.success & ~spec.violation, width)  # [N]
-    finite = jnp.min(jnp.where(success[None], dist, jnp.inf), axis=1)
-    return jnp.where(spec.is_finite, finite, lasso)
+    # one reduction, no second [N, N] array: a co-safe plan ends on entering a success node
+    end = jnp.where(spec.is_finite, jnp.where(success, 0.0, jnp.inf), closing)
+    return jnp.min(dist + end[None], axis=1)
 
 
 class Step(NamedTuple):

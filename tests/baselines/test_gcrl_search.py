@@ -157,3 +157,17 @@ def test_persistence_jumps_only_while_standing_on_the_proposition():
     assert (int(fresh.goal), int(fresh.slot)) == (0, -1)
     on_a = first(spec, spec.init, jnp.int32(0), costs[3], to_go, rows, empty)
     assert (int(on_a.goal), int(on_a.slot)) == (-1, 0)
+
+
+def test_cost_to_go_holds_about_the_distance_matrix_per_search():
+    """The evaluator runs one search per episode side by side: each may hold a few N x N
+    arrays, not one row of N per accepting goal edge (P times more, ~14 N x N here)."""
+    props = tuple("abcdefghijkl")
+    alphabet = automata.zero_or_one(len(props))
+    spec = automata.compile_spec("G F a & G F b & G (c -> F d) & G !e", props, alphabet=alphabet)
+    rows, empty = search.goal_symbols(alphabet)
+    batch, nodes = 8, spec.delta.shape[0] * (len(props) + 1)
+    costs = jnp.full((batch, len(props) + 1, len(props)), 0.5)
+    searches = jax.jit(jax.vmap(lambda c: search.cost_to_go(spec, c, jnp.asarray(rows), empty)))
+    temp = searches.lower(costs).compile().memory_analysis().temp_size_in_bytes
+    assert temp < batch * 5 * nodes * nodes * 4
