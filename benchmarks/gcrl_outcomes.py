@@ -1,8 +1,9 @@
 """Where GCRL-LTL's finite-suite episodes end: success, violation, the world's own termination
 (a Zone wall) or the time limit, under test-time variants of the agent.
 
-Variants: the reference agent (mode primitive choice, safety rule at 0.85), the safety rule off
-(threshold 2: critic values never exceed it), sampled primitive choice. Reads the parameters
+Variants: the reference agent (mode primitive choice, safety rule at 0.85, primitives at the
+test temperature 1.5), the safety rule off (threshold 2: critic values never exceed it),
+sampled primitive choice, the primitives at the training temperature 1.25. Reads the parameters
 that `train_baselines.py` writes (`<out>/gcrl/params.msgpack`, leading seed axis).
 
 Example (GPU, after `train_baselines.py --methods gcrl --env PointLTL0-v0 --out /tmp/zone`):
@@ -23,6 +24,7 @@ VARIANTS = {
     "reference": {},
     "no safety rule": {"value_threshold": 2.0},
     "sampled choice": {"deterministic": False},
+    "training temperature 1.25": {"temperature": 1.25},
 }
 
 

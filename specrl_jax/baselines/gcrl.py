@@ -411,17 +411,19 @@ def goal_outputs(network: nn.Module, params: Any, parts: Mapping[str, jax.Array]
 
 def safe_action(network: nn.Module, out: PolicyOutput, goal: jax.Array, avoid: jax.Array,
                 value_threshold: float, deterministic: bool, key: jax.Array,
-                primitives: Any = None, sensors: jax.Array | None = None) -> jax.Array:
+                primitives: Any = None, sensors: jax.Array | None = None,
+                temperature: float = primitives_lib.EVAL_TEMPERATURE) -> jax.Array:
     """The world action by the original's safety rule, on `goal_outputs`.
 
     When some avoided proposition has `V(s, p) > value_threshold` and above the goal's value,
     turn away from the most dangerous one: with direction primitives, the sum of the primitive
     least likely toward it and the goal's best primitive other than the one most likely toward
-    it (the original's: the two clipped mean actions summed, times the test temperature 1.5,
-    clipped); on a grid, that goal move alone; with a continuous head, the goal's
+    it (the original's: the two clipped mean actions summed, times `temperature`, clipped);
+    on a grid, that goal move alone; with a continuous head, the goal's
     mean action minus the danger's. Otherwise the goal's mode (`deterministic`) or a sample.
     `goal` int32[] (-1: none; then only the turn away, when there is a danger). `primitives`,
-    `sensors`: the primitives' parameters and the robot sensors, for a primitive network.
+    `sensors`: the primitives' parameters and the robot sensors, for a primitive network;
+    `temperature` scales their actions (the original's 1.5 at test time).
     """
     index = jnp.maximum(goal, 0)
     danger = jnp.where(avoid, out.value, -jnp.inf)
@@ -442,7 +444,6 @@ def safe_action(network: nn.Module, out: PolicyOutput, goal: jax.Array, avoid: j
     action_dim = primitives["params"]["log_std"].shape[-1]
     prim = primitives_lib.PrimitiveNetwork(action_dim)
     move = lambda i, t: primitives_lib.primitive_action(prim, primitives, i, sensors, t)
-    temperature = primitives_lib.EVAL_TEMPERATURE
     # the original sums the two primitives' actions (each clipped to the box) before scaling
     summed = jnp.where(has_goal, move(other, 1.0), 0.0) + move(safe, 1.0)
     composed = jnp.clip(temperature * summed, -1.0, 1.0)
@@ -486,7 +487,8 @@ class GCRLCarry(NamedTuple):
 def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str, str],
                 deterministic: bool = True, value_threshold: float = VALUE_THRESHOLD,
                 omega: float = search.OMEGA,
-                value_network: nn.Module = ValueFunction()) -> StatefulPolicy:
+                value_network: nn.Module = ValueFunction(),
+                temperature: float = primitives_lib.EVAL_TEMPERATURE) -> StatefulPolicy:
     """GCRL-LTL's test-time agent as a `StatefulPolicy`; params `{"policy", "gcvf"}`.
 
     At the episode's start the value map is read off the first observation (critic V(s, p) for
@@ -498,7 +500,8 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
     from the most dangerous one (discrete: the goal's best action other than the one most likely
     toward it; continuous: the goal's mean action minus the danger's, clipped); otherwise the
     goal's mode (`deterministic`, the original's) or a sample. With no goal needed the agent
-    moves away from the most dangerous avoided proposition.
+    moves away from the most dangerous avoided proposition. `temperature` scales the direction
+    primitives' actions of a robot world (the original's 1.5).
     """
     alphabet_np = np.asarray(alphabet, bool)
     num_props = alphabet_np.shape[1]
@@ -543,7 +546,8 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
         carry = jax.lax.cond(moved | reached, lambda: replan(out, task_state, carry, last),
                              lambda: carry._replace(last=last))
         action = safe_action(network, out, carry.goal, carry.avoid, value_threshold,
-                             deterministic, key, params.get("primitives"), _sensors(network, obs))
+                             deterministic, key, params.get("primitives"), _sensors(network, obs),
+                             temperature)
         return (action, carry.slot), carry
 
     return StatefulPolicy(init, apply)

@@ -114,7 +114,7 @@ def test_safety_rule_sums_the_safe_and_the_goal_primitive():
 def test_safety_rule_scales_the_sum_of_the_two_primitives_not_each():
     """The original steps `(a_safe + a_goal) * 1.5` (each primitive's action clipped to the box
     first, the world clips the result): a saturating primitive cannot cancel the other."""
-    means = [[0.9, -0.2], [0.0, 0.0], [0.0, 0.0], [-0.5, 0.8]]  # safe 0, goal 3
+    means = [[0.9, -0.2], [0.0, 0.0], [0.6, -0.4], [-0.5, 0.8]]  # safe 0, goal 3, mode 2
     network = gcrl.GCRLNetwork(4, primitive_sensors=2)
     logits = jnp.array([[0.0, 1.0, 5.0, 2.0],  # toward the danger: 2; least likely 0
                         [0.0, 1.0, 4.0, 3.0]])  # toward the goal: 2 (blocked), then 3
@@ -123,3 +123,10 @@ def test_safety_rule_scales_the_sum_of_the_two_primitives_not_each():
                               True, jax.random.key(0), _primitives(means), jnp.zeros(2))
     # (0.9 - 0.5) * 1.5 = 0.6 and (-0.2 + 0.8) * 1.5 = 0.9; scaling each first gives 0.25, 0.7
     np.testing.assert_allclose(action, [0.6, 0.9], atol=1e-6)
+    # another temperature scales the sum, and the goal's own primitive below the threshold
+    for values, want in (([0.9, 0.7], [0.5, 0.75]), ([0.8, 0.7], [0.75, -0.5])):
+        out = out._replace(value=jnp.asarray(values))
+        action = gcrl.safe_action(network, out, jnp.int32(1), jnp.array([True, False]), 0.85,
+                                  True, jax.random.key(0), _primitives(means), jnp.zeros(2),
+                                  temperature=1.25)
+        np.testing.assert_allclose(action, want, atol=1e-6)
