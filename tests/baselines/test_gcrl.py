@@ -53,7 +53,7 @@ def _tiny_world():
 def test_gcrl_learns_a_tiny_world_and_its_agent_follows_specs():
     world, params = _tiny_world()
     method = gcrl.make_method(world, params, trunk=(64, 64), value_features=(64, 64))
-    updates = 60
+    updates = 80  # 60 left '!a U b' at 0.5 success on a 2-core CPU
     cfg = gcrl.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * updates,
                           update_epochs=4, num_minibatches=2)
     runner, metrics = jax.jit(make_train(cfg, method))(jax.random.key(1))
@@ -76,7 +76,7 @@ def test_gcrl_learns_a_tiny_world_and_its_agent_follows_specs():
                               value_network=method.value_network)
     formulas = ["F a", "F b", "!a U b", "F (a & F b)"]
     result = evaluate(policy, (world, params.replace(max_steps=12)), formulas, seeds=[1],
-                      episodes_per_seed=16, policy_params={"policy": runner.params, "gcvf": gcvf})
+                      episodes_per_seed=64, policy_params={"policy": runner.params, "gcvf": gcvf})
     success = np.asarray(result.table.success).mean(axis=(0, 2))
     violation = np.asarray(result.table.violation).mean(axis=(0, 2))
     assert (success > 0.6).all() and violation[2] < 0.3, (success, violation)
