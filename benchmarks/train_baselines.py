@@ -87,12 +87,12 @@ def main() -> None:
             results += experiment.evaluate(method, args.env, params, suites, args.episodes,
                                            env_options=env_options)
             if args.stochastic_too:
-                # GenZ-LTL's reference mode is deterministic; DeepLTL's and GCRL-LTL's are
-                # sampled on LetterWorld
-                other = method == "genz"
-                label = experiment.METHOD_NAMES[method] + (" (sampled)" if other else " (mode)")
+                # the reference's action mode (experiment.make_policy): GenZ-LTL's and every
+                # method's on ZoneEnv deterministic; DeepLTL's and GCRL-LTL's on LetterWorld sampled
+                reference_mode = method == "genz" or world_family != "letter"
+                label = experiment.METHOD_NAMES[method] + (" (sampled)" if reference_mode else " (mode)")
                 results += experiment.evaluate(method, args.env, params, suites[:2], args.episodes,
-                                               deterministic=not other, label=label,
+                                               deterministic=not reference_mode, label=label,
                                                env_options=env_options)
             if args.no_threshold_too and method == "deepltl":
                 results += experiment.evaluate(method, args.env, params, suites, args.episodes,
