@@ -2,10 +2,12 @@
 tracking gains under uniform random actions at a large batch (the reference's measurement), and
 where the compile time goes (`--parts compile`: each piece of the env step lowered and compiled
 alone, with the persistent compilation cache off), and what MJX's line-search length costs and
-changes (`--parts linesearch`).
+changes (`--parts linesearch`), and how close each line-search length keeps MJX to MuJoCo C over
+saturated rollouts (`--parts ls_vs_c`, a CPU-sized check).
 
     python benchmarks/arm_checks.py --batch 4096 --steps 1000 --out arm_checks.json
     python benchmarks/arm_checks.py --parts compile --compile-batch 4 --out arm_compile.json
+    python benchmarks/arm_checks.py --parts ls_vs_c --c-batch 256 --c-steps 150 --out arm_ls_c.json
 
 Each part prints a line when it starts and as it progresses, and the JSON file is rewritten after
 every part, so a run cut short by a time limit still leaves what it measured.
@@ -14,16 +16,22 @@ every part, so a run cut short by a time limit still leaves what it measured.
 from __future__ import annotations
 
 import argparse
+import copy
+import functools
 import json
 import sys
 import time
 
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 
 import specrl_jax
+from specrl_jax.envs.arm import model as arm_model
+from specrl_jax.envs.arm.env import ACTION_SCALE
 from specrl_jax.envs.arm.model import NEUTRAL_QPOS
+from specrl_jax.envs.arm.physics import SUBSTEPS, Physics, PhysicsState, motor_torque
 from specrl_jax.envs.wrappers import batch as batch_env
 
 REFERENCE_GAINS = (0.61, 0.50, 0.82, 0.82, 0.86, 0.877, 0.878)
@@ -99,9 +107,20 @@ def tracking_gains(num_envs: int, num_steps: int) -> dict:
     return out
 
 
+def model_with_line_search(length: int) -> mujoco.MjModel:
+    """The registered arm model (table contacts on) with `opt.ls_iterations = length`."""
+    model = copy.deepcopy(arm_model.load_model())
+    model.opt.ls_iterations = length
+    return model
+
+
+def physics_with_line_search(length: int) -> Physics:
+    return Physics(model_with_line_search(length), arm_model.FORCE_LIMITS)
+
+
 def line_search(num_envs: int, num_steps: int, lengths: list[int]) -> dict:
     """The physics step with MJX's constraint solver at other line-search lengths
-    (`opt.ls_iterations`, the model's 50): MJX runs every line search as a scan of that many
+    (`opt.ls_iterations`, against MuJoCo's 50): MJX runs every line search as a scan of that many
     iterations (no-ops after convergence, which under `vmap` still cost a full iteration), so
     the length sets much of a substep's time while results should not depend on it.
 
@@ -109,23 +128,13 @@ def line_search(num_envs: int, num_steps: int, lengths: list[int]) -> dict:
     (ms per env step after compile); then one env step from every state of the 50-iteration
     rollout with each length: how many states give bit-identical joint angles and the largest
     difference (rad)."""
-    import copy
-
-    from specrl_jax.envs.arm import model as arm_model
-    from specrl_jax.envs.arm.physics import Physics
-
-    def physics(length: int) -> Physics:
-        model = copy.deepcopy(arm_model.load_model())
-        model.opt.ls_iterations = length
-        return Physics(model, arm_model.FORCE_LIMITS)
-
     actions = jnp.sign(jax.random.uniform(jax.random.key(3), (num_steps, num_envs, 7),
                                           minval=-1, maxval=1))
-    start_state = jax.vmap(Physics.init, in_axes=(None, 0))(
-        physics(50), jnp.tile(jnp.asarray(NEUTRAL_QPOS, jnp.float32), (num_envs, 1)))
+    start_state = jax.vmap(physics_with_line_search(50).init)(
+        jnp.tile(jnp.asarray(NEUTRAL_QPOS, jnp.float32), (num_envs, 1)))
     out, visited, last = {}, [], {}
     for length in [50, *[n for n in lengths if n != 50]]:
-        p = physics(length)
+        p = physics_with_line_search(length)
         step = jax.jit(jax.vmap(lambda s, a, p=p: p.step(s, s.qpos + 0.05 * a)))
         start = time.perf_counter()
         state = jax.block_until_ready(step(start_state, actions[0]))
@@ -150,6 +159,217 @@ def line_search(num_envs: int, num_steps: int, lengths: list[int]) -> dict:
             row.update(states=int(diff.size), identical=int((diff == 0).sum()),
                        max_abs_dq=float(diff.max()))
             log(f"line search {length} against 50: {json.dumps(row)}")
+    return out
+
+
+def saturated_actions(key: jax.Array, num_steps: int, num_envs: int) -> np.ndarray:
+    """float32[T, B, 7] actions of +-1; each arm and joint draws its probability of +1 from
+    U(0.1, 0.9), so arms drift (into joint limits, the table and the floor) as well as jitter."""
+    key_bias, key_sign = jax.random.split(key)
+    bias = jax.random.uniform(key_bias, (num_envs, 7), minval=0.1, maxval=0.9)
+    up = jax.random.uniform(key_sign, (num_steps, num_envs, 7)) < bias
+    return np.asarray(jnp.where(up, 1.0, -1.0), np.float32)
+
+
+def c_rollout(model: mujoco.MjModel, start: PhysicsState, actions: np.ndarray) -> dict:
+    """The env's control law on MuJoCo C (float64): each env step the joint targets
+    `q + 0.05 a`, then per substep `mj_step1`, the motor torques of `physics.motor_torque` (run
+    in float64) from C's mass matrix and bias forces, and `mj_step2`.
+
+    Args:
+        model: the MuJoCo model (its `opt` is C's solver setting).
+        start: batched `PhysicsState` (float[B, 7] each) to start from.
+        actions: float[T, B, 7].
+
+    Returns `qpos`, `qvel`, `qacc_warmstart` float64[T + 1, B, 7] and, per env step
+    int32[T, B], the most contacts (`ncon`), joint-limit rows (`nl`), Newton iterations and
+    line-search cost evaluations of one substep (`ls_evals`: the most in one Newton iteration).
+    """
+    num_steps, num_envs = actions.shape[:2]
+    datas = [mujoco.MjData(model) for _ in range(num_envs)]
+    for i, data in enumerate(datas):
+        data.qpos[:], data.qvel[:] = np.asarray(start.qpos[i]), np.asarray(start.qvel[i])
+        data.qacc_warmstart[:] = np.asarray(start.qacc_warmstart[i])
+    limit = np.asarray(arm_model.FORCE_LIMITS, np.float64)
+    with jax.enable_x64(True):
+        torque = jax.jit(jax.vmap(functools.partial(motor_torque, h=float(model.opt.timestep)),
+                                  in_axes=(0, 0, 0, 0, 0, None)))
+        fields = ("qpos", "qvel", "qacc_warmstart")
+        out = {k: np.zeros((num_steps + 1, num_envs, model.nv)) for k in fields}
+        stats = {k: np.zeros((num_steps, num_envs), np.int32)
+                 for k in ("ncon", "nl", "newton_iterations", "ls_evals")}
+        mass = np.zeros((num_envs, model.nv, model.nv))
+        for t in range(num_steps + 1):
+            for k in fields:
+                out[k][t] = [getattr(d, k) for d in datas]
+            if t == num_steps:
+                break
+            target = out["qpos"][t] + ACTION_SCALE * actions[t]
+            for _ in range(SUBSTEPS):
+                for i, data in enumerate(datas):
+                    mujoco.mj_step1(model, data)
+                    mujoco.mj_fullM(model, data, mass[i])
+                bias = np.asarray([d.qfrc_passive - d.qfrc_bias for d in datas])
+                qvel = np.asarray([d.qvel for d in datas])
+                qpos = np.asarray([d.qpos for d in datas])
+                tau = np.asarray(torque(mass, np.linalg.solve(mass, bias[..., None])[..., 0],
+                                        qvel, qpos, target, limit))
+                for i, data in enumerate(datas):
+                    data.qfrc_applied[:] = tau[i]
+                    mujoco.mj_step2(model, data)
+                    niter = int(data.solver_niter.sum())
+                    row = (data.ncon, data.nl, niter,
+                           int(data.solver.neval[:max(niter, 1)].max()))
+                    for k, v in zip(stats, row):
+                        stats[k][t, i] = max(stats[k][t, i], v)
+    return {**out, **stats}
+
+
+def env_step(physics: Physics):
+    """The jitted batched physics step under the env's control law: `(state, action float[B, 7])
+    -> state` with joint targets `q + 0.05 a`."""
+    return jax.jit(jax.vmap(lambda s, a: physics.step(s, s.qpos + ACTION_SCALE * a)))
+
+
+def mjx_rollout(step, start: PhysicsState, actions: np.ndarray) -> dict:
+    """`qpos`, `qvel` float32[T + 1, B, 7] of MJX from `start` under `actions` (float[T, B, 7]),
+    one call of `step` (an `env_step`) per Python iteration."""
+    state, qpos, qvel = start, [start.qpos], [start.qvel]
+    for action in actions:
+        state = step(state, jnp.asarray(action))
+        qpos.append(state.qpos)
+        qvel.append(state.qvel)
+    return {"qpos": np.asarray(jnp.stack(qpos)), "qvel": np.asarray(jnp.stack(qvel))}
+
+
+def error_summary(err: np.ndarray, checkpoints: tuple[int, ...] = (10, 50, 100, 150)) -> dict:
+    """Median, p99 and max of `err: float[T + 1, B]` (rad, largest joint) over every step after
+    the start, a 95% interval of the median and p99 from resampling arms, and the same three at
+    some steps."""
+    pooled = err[1:]
+    rng = np.random.default_rng(0)
+    picks = rng.integers(0, err.shape[1], (200, err.shape[1]))
+    boot = np.asarray([np.percentile(pooled[:, p], [50, 99]) for p in picks])
+    row = {"median": float(np.median(pooled)), "p99": float(np.percentile(pooled, 99)),
+           "max": float(pooled.max()),
+           "median_95": np.percentile(boot[:, 0], [2.5, 97.5]).tolist(),
+           "p99_95": np.percentile(boot[:, 1], [2.5, 97.5]).tolist()}
+    for t in checkpoints:
+        if t < len(err):
+            row[f"step_{t}"] = [float(np.median(err[t])), float(np.percentile(err[t], 99)),
+                                float(err[t].max())]
+    return row
+
+
+def label_summary(ours: np.ndarray, ref: np.ndarray) -> dict:
+    """Agreement of mode-0 labels `ours`, `ref: bool[T + 1, B, P]`: steps whose label vectors
+    differ, the true labels of each, and how many (arm, proposition) pairs first hold at the
+    same step (or never) in both."""
+    def first(labels):
+        return np.where(labels.any(0), labels.argmax(0), -1)
+
+    return {"steps": int(ref.shape[0] * ref.shape[1]),
+            "steps_differing": int((ours != ref).any(-1).sum()),
+            "true_ref": int(ref.sum()), "true_ours": int(ours.sum()),
+            "true_both": int((ours & ref).sum()),
+            "first_visits_ref": int((first(ref) >= 0).sum()),
+            "first_visit_pairs_differing": int((first(ours) != first(ref)).sum())}
+
+
+def one_step_from_c(steps: dict, ref: dict, actions: np.ndarray, times: np.ndarray) -> dict:
+    """One env step from C's states (joint angles, velocities, warm start) at `times` with each
+    `steps[name] = (env_step, nudge)` (`nudge`: joint angles one float32 step up); per name
+    |q_MJX - q_C| (largest joint, rad) overall and by what C's step engaged, and against
+    "50" the bit-identical count and largest difference."""
+    kind = np.where(ref["ncon"][times] > 0, "contact",
+                    np.where(ref["nl"][times] > 0, "limit only", "free"))
+    after, out = {}, {}
+    for name, (step, nudge) in steps.items():
+        qs = []
+        for t in times:
+            qpos = ref["qpos"][t].astype(np.float32)
+            state = PhysicsState(
+                qpos=np.nextafter(qpos, np.float32(np.inf)) if nudge else qpos,
+                qvel=ref["qvel"][t].astype(np.float32),
+                qacc_warmstart=ref["qacc_warmstart"][t].astype(np.float32))
+            qs.append(np.asarray(step(state, jnp.asarray(actions[t])).qpos))
+        after[name] = np.stack(qs)
+        err = np.abs(after[name] - ref["qpos"][times + 1]).max(-1)
+        row = {"states": int(err.size), "median": float(np.median(err)),
+               "p99": float(np.percentile(err, 99)), "max": float(err.max())}
+        for k in ("contact", "limit only", "free"):
+            if (kind == k).any():
+                row[k] = [int((kind == k).sum()), float(np.median(err[kind == k])),
+                          float(np.percentile(err[kind == k], 99)), float(err[kind == k].max())]
+        if name != "50":
+            diff = np.abs(after[name] - after["50"]).max(-1)
+            row.update(identical_to_50=int((diff == 0).sum()), max_vs_50=float(diff.max()),
+                       differing_with_contact=int(((diff > 0) & (kind == "contact")).sum()))
+        out[name] = row
+        log(f"ls_vs_c: one step, {name}: {json.dumps(row)}")
+    return out
+
+
+def line_search_vs_c(num_envs: int, num_steps: int, lengths: list[int], stride: int) -> dict:
+    """MJX at each line-search length against MuJoCo C (float64, MuJoCo's 50) under the same
+    control law, `num_envs` arms from the neutral pose under `saturated_actions`:
+
+    - `c_engaged`: what C's steps engaged, and its line-search cost evaluations per step;
+    - `c_cap`: C itself at the shorter lengths (C's cap counts cost evaluations; C stops at
+      `ls_tolerance`), largest |q - q_C50| over the rollout;
+    - `free`: free-running |q_MJX - q_C| (largest joint, rad) per length, and `pairs`
+      |q_MJX(n) - q_MJX(50)|, beside `rounding_twin`: MJX 50 from joint angles one float32
+      step away (np.nextafter), the spread that rounding alone gives;
+    - `labels`: mode-0 labels (regions of one bank layout per arm) against C's;
+    - `one_step`: `one_step_from_c` every `stride` steps.
+    """
+    env, params = specrl_jax.make("PandaLTLReach0Joints-v0")
+    regions = env.with_map_bank(jax.random.key(6), params, num_envs).layout_bank
+
+    @jax.jit
+    def labels(qpos):  # float[T, B, 7] -> bool[T, B, P]
+        def one(q, centres):
+            _, state = env.reset_to(None, {"region_pos": centres, "joint_qpos": q}, params)
+            return env.label(state)
+        return jax.vmap(jax.vmap(one), in_axes=(0, None))(qpos, regions)
+
+    actions = saturated_actions(jax.random.key(4), num_steps, num_envs)
+    neutral = np.tile(NEUTRAL_QPOS, (num_envs, 1)).astype(np.float32)
+    start = PhysicsState(qpos=neutral, qvel=np.zeros_like(neutral),
+                         qacc_warmstart=np.zeros_like(neutral))
+    t0 = time.perf_counter()
+    ref = c_rollout(model_with_line_search(50), start, actions)
+    log(f"ls_vs_c: C rollout {time.perf_counter() - t0:.0f} s")
+    out = {"batch": num_envs, "steps": num_steps,
+           "c_engaged": {"steps_with_contact": float((ref["ncon"] > 0).mean()),
+                         "arms_with_contact": int((ref["ncon"] > 0).any(0).sum()),
+                         "steps_with_limit": float((ref["nl"] > 0).mean()),
+                         "newton_iterations_max": int(ref["newton_iterations"].max()),
+                         "ls_evals_hist": np.bincount(ref["ls_evals"].ravel()).tolist()},
+           "c_cap": {}, "free": {}, "pairs": {}, "labels": {}}
+    for n in lengths:
+        short = c_rollout(model_with_line_search(n), start, actions)
+        out["c_cap"][n] = float(np.abs(short["qpos"] - ref["qpos"]).max())
+        log(f"ls_vs_c: C at {n}: {out['c_cap'][n]}")
+    ref_labels = np.asarray(labels(ref["qpos"]))
+
+    compiled = {n: env_step(physics_with_line_search(n)) for n in [50, *lengths]}
+    steps = {str(n): (compiled[n], False) for n in [50, *lengths]}
+    steps["rounding_twin"] = (compiled[50], True)
+    runs = {}
+    for name, (step, nudge) in steps.items():
+        t0 = time.perf_counter()
+        first = start.replace(qpos=np.nextafter(neutral, np.float32(np.inf))) if nudge else start
+        runs[name] = mjx_rollout(step, first, actions)
+        out["free"][name] = error_summary(np.abs(runs[name]["qpos"] - ref["qpos"]).max(-1))
+        out["free"][name]["seconds"] = time.perf_counter() - t0
+        out["labels"][name] = label_summary(np.asarray(labels(runs[name]["qpos"])), ref_labels)
+        if name != "50":
+            out["pairs"][name] = error_summary(
+                np.abs(runs[name]["qpos"] - runs["50"]["qpos"]).max(-1))
+        log(f"ls_vs_c: MJX {name}: {json.dumps(out['free'][name])} labels "
+            f"{json.dumps(out['labels'][name])}")
+    out["one_step"] = one_step_from_c(steps, ref, actions, np.arange(0, num_steps, stride))
     return out
 
 
@@ -239,11 +459,16 @@ def main() -> None:
     parser.add_argument("--bank-size", type=int, default=4096)
     parser.add_argument("--gain-batch", type=int, default=256)
     parser.add_argument("--gain-steps", type=int, default=400)
-    parser.add_argument("--parts", nargs="+", choices=("gains", "nan", "compile", "linesearch"),
+    parser.add_argument("--parts", nargs="+",
+                        choices=("gains", "nan", "compile", "linesearch", "ls_vs_c"),
                         default=("gains", "nan"))
     parser.add_argument("--ls-batch", type=int, default=4096)
     parser.add_argument("--ls-steps", type=int, default=20)
     parser.add_argument("--ls-lengths", type=int, nargs="+", default=[10, 5])
+    parser.add_argument("--c-batch", type=int, default=256)
+    parser.add_argument("--c-steps", type=int, default=150)
+    parser.add_argument("--c-stride", type=int, default=5,
+                        help="ls_vs_c: one env step from C's states every this many steps")
     parser.add_argument("--compile-batch", type=int, default=4)
     parser.add_argument("--compile-steps", type=int, default=50)
     parser.add_argument("--pieces", nargs="+", choices=PIECES, default=None,
@@ -273,6 +498,11 @@ def main() -> None:
     if "linesearch" in args.parts:
         log(f"line search: {args.ls_batch} arms x {args.ls_steps} saturated steps")
         results["linesearch"] = line_search(args.ls_batch, args.ls_steps, args.ls_lengths)
+        save()
+    if "ls_vs_c" in args.parts:
+        log(f"ls_vs_c: {args.c_batch} arms x {args.c_steps} saturated steps against MuJoCo C")
+        results["ls_vs_c"] = line_search_vs_c(args.c_batch, args.c_steps, args.ls_lengths,
+                                              args.c_stride)
         save()
     if "nan" in args.parts:
         for env_id in ("PandaLTLReach0Joints-v0", "PandaLTLReach1Joints-v0"):

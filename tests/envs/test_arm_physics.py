@@ -9,7 +9,7 @@ import pytest
 from scipy.optimize import minimize
 
 from specrl_jax.envs.arm import model as arm_model
-from specrl_jax.envs.arm.physics import MOTOR_RATE, Physics, motor_torque
+from specrl_jax.envs.arm.physics import MOTOR_RATE, Physics, PhysicsState, motor_torque
 
 H = 0.002
 
@@ -75,6 +75,71 @@ def test_one_env_step_matches_mujoco_c_under_the_same_control(physics):
         state = step(state, jnp.asarray(target, jnp.float32))
         assert np.abs(np.asarray(state.qpos) - data.qpos).max() < 2e-4
         assert np.abs(np.asarray(state.qvel) - data.qvel).max() < 2e-2
+
+
+def _contact_model(ls_iterations=None):
+    """The arm model with 7 of its 13 contact pairs, optionally another line-search length: a
+    subset keeps MJX's compile short and still mixes every face shape (6-, 5-, 3- and 4-cornered
+    polygons), a mesh shared by two geoms, and both kinds of pair."""
+    keep = {("link4", "table"), ("link5", "table"), ("link6", "table"), ("leftfinger", "table"),
+            ("rightfinger", "table"), ("hand", "floor"), ("link7", "floor")}
+    spec = mujoco.MjSpec.from_file(str(arm_model.MODEL_PATH))
+    for pair in list(spec.pairs):
+        if (pair.geomname1, pair.geomname2) not in keep:
+            spec.delete(pair)
+    if ls_iterations is not None:
+        spec.option.ls_iterations = ls_iterations
+    return spec.compile()
+
+
+def test_one_env_step_with_contacts_and_limits_matches_mujoco_c_at_the_line_search_cap():
+    """The model's line-search cap (`assets/panda.xml`, MJX's iterations) against MuJoCo's 50
+    and MuJoCo C (float64, 50): one env step from 48 joint angles touching the table or floor
+    (joints moving at up to 1 rad/s) and 2 at joint limits (at rest, targets into the limit).
+    The cap lands where 50 does (a cap of 2 departs by 2e-3 rad here), and both as near C as
+    `arm_checks.py --parts ls_vs_c` measured (MJX's contacts are its own: mm-level, up to
+    6e-2 rad in its 975 contact states); C on every 4th contact state (the reference motor's
+    optimiser is slow)."""
+    capped = _contact_model()
+    assert capped.opt.ls_iterations < 50  # the cap under test
+    model = _contact_model(ls_iterations=50)
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(8)
+    low, high = model.jnt_range[:, 0], model.jnt_range[:, 1]
+    starts = []
+    while len(starts) < 48:  # touching, less than 1 cm deep
+        data.qpos[:] = rng.uniform(low, high)
+        mujoco.mj_forward(model, data)
+        if data.ncon and data.contact.dist[:data.ncon].min() > -0.01:
+            starts.append(data.qpos.copy())
+    qvel = rng.uniform(-1.0, 1.0, (len(starts), 7))
+    for joint in (1, 3):  # shoulder and elbow next to their lower limits, at rest
+        q = arm_model.NEUTRAL_QPOS.copy()
+        q[joint] = low[joint] + 0.005
+        starts.append(q)
+    starts = np.asarray(starts)
+    qvel = np.concatenate([qvel, np.zeros((2, 7))])
+    targets = starts + 0.05 * rng.choice([-1.0, 1.0], starts.shape)
+    targets[-2:, (1, 3)] = starts[-2:, (1, 3)] - 0.05
+    after = {}
+    for name, m in (("cap", capped), ("50", model)):
+        physics = Physics(m, arm_model.FORCE_LIMITS)
+        state = PhysicsState(qpos=jnp.asarray(starts, jnp.float32),
+                             qvel=jnp.asarray(qvel, jnp.float32),
+                             qacc_warmstart=jnp.zeros(starts.shape, jnp.float32))
+        step = jax.jit(jax.vmap(physics.step))
+        after[name] = np.asarray(step(state, jnp.asarray(targets, jnp.float32)).qpos)
+    assert np.abs(after["cap"] - after["50"]).max() < 1e-5
+    checked = [*range(0, 48, 4), 48, 49]
+    ref = []
+    for q, v, target in zip(starts[checked], qvel[checked], targets[checked]):
+        data = mujoco.MjData(model)
+        data.qpos[:], data.qvel[:] = q, v
+        _c_step(model, data, target)
+        ref.append(data.qpos.copy())
+    for name, qpos in after.items():
+        err = np.abs(qpos[checked] - np.asarray(ref)).max(1)
+        assert np.median(err) < 5e-3 and err.max() < 6e-2 and err[-2:].max() < 1e-4, (name, err)
 
 
 def test_tracking_gains_match_the_original_under_random_actions(physics):
@@ -176,15 +241,7 @@ def test_batched_collision_gives_mjx_contacts():
     4th contact repeats one of them, and which one rests on a float tie: compared as point sets."""
     from specrl_jax.envs.zone.mjx_import import mjx
 
-    # a subset of the pairs keeps MJX's compile short and still mixes every face shape (6-, 5-,
-    # 3- and 4-cornered polygons), a mesh shared by two geoms, and both kinds of pair
-    keep = {("link4", "table"), ("link5", "table"), ("link6", "table"), ("leftfinger", "table"),
-            ("rightfinger", "table"), ("hand", "floor"), ("link7", "floor")}
-    spec = mujoco.MjSpec.from_file(str(arm_model.MODEL_PATH))
-    for pair in list(spec.pairs):
-        if (pair.geomname1, pair.geomname2) not in keep:
-            spec.delete(pair)
-    model = spec.compile()
+    model = _contact_model()
     physics = Physics(model, arm_model.FORCE_LIMITS)
     m = physics.model
     rng = np.random.default_rng(7)
