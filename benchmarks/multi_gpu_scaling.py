@@ -14,8 +14,7 @@ compiling one; the wall-clock of seeds x 15M steps is compile + steps / that rat
 
 Evaluation: `experiment.evaluate` of every suite of the world (seeds x `--episodes`), episodes
 sharded over the first n devices, with the trained seed-1 parameters of
-`benchmarks/results/<world>_genz_params_seed1.msgpack` for every seed when present (random ones
-otherwise). Wall-clock of the compiled program, and with compile.
+`benchmarks/results/<world>_genz_params_seed1.msgpack` for every seed. Wall-clock of the compiled program, and with compile.
 
 Writes `<out>/scaling.json` after every measurement and `<out>/scaling.png` (efficiency).
 """
@@ -56,7 +55,7 @@ def train_rate(env_id: str, num_envs: int, num_steps: int, devices: list, seeds:
     init = jax.jit(trainer.init)
     runner = jax.tree.map(lambda *xs: jnp.stack(xs),
                           *[init(k) for k in jax.random.split(jax.random.key(1), seeds)])
-    chunk = jax.jit(runs._seed_batched(trainer, seeds), static_argnums=1, donate_argnums=0)
+    chunk = jax.jit(runs.seed_batched(trainer, seeds), static_argnums=1, donate_argnums=0)
     start = time.perf_counter()
     runner, _ = jax.block_until_ready(chunk(runner, updates, jnp.int32(updates)))
     first = time.perf_counter() - start
@@ -74,14 +73,7 @@ def eval_time(env_id: str, devices: list, seeds: int, episodes: int,
               suites: list[str]) -> dict[str, float]:
     """Seconds to evaluate `suites` (seeds x episodes) with the episodes over `devices`."""
     name = f"{env_id.split('-')[0].lower()}_genz_params_seed1.msgpack"
-    path = ROOT / "benchmarks/results" / name
-    if path.exists():
-        one = experiment.load_params("genz", env_id, path, 1)
-    else:
-        world, env_params, method, _ = experiment.build("genz", env_id, {}, None, jax.random.key(0))
-        obs, _ = method.env.reset(jax.random.key(0), method.init_task_params())
-        one = jax.tree.map(lambda x: x[None], method.network.init(
-            jax.random.key(0), jax.tree.map(lambda x: x[None], obs)))
+    one = experiment.load_params("genz", env_id, ROOT / "benchmarks/results" / name, 1)
     params = jax.tree.map(lambda x: jnp.repeat(x, seeds, axis=0), one)
     lines: list[str] = []
     start = time.perf_counter()
@@ -91,8 +83,7 @@ def eval_time(env_id: str, devices: list, seeds: int, episodes: int,
                     if line.startswith("compiled the evaluator"))
     run_s = sum(float(line.split(" in ")[-1].rstrip("s")) for line in lines
                 if line.startswith("evaluated"))
-    return {"eval_run_s": run_s, "compile_s": compile_s, "total_s": total,
-            "trained_params": path.exists()}
+    return {"eval_run_s": run_s, "compile_s": compile_s, "total_s": total}
 
 
 def plot(record: dict[str, Any], path: Path) -> None:

@@ -164,7 +164,7 @@ def main() -> None:
 
     # TRAINING CHUNKS: the trainer's own update (KL stop) exactly as `runs.train_in_run_dir` calls
     # it for one seed: unbatched inside a seed axis of 1, with the `active` count of a partly idle chunk
-    updates = jax.jit(runs._seed_batched(trainer, 1), static_argnums=1, donate_argnums=0)
+    updates = jax.jit(runs.seed_batched(trainer, 1), static_argnums=1, donate_argnums=0)
     seeds = jax.tree.map(lambda x: x[None], runner)
     active = jnp.int32(args.chunk)
     start = time.perf_counter()

@@ -80,7 +80,7 @@ def _rows(metrics: dict[str, Any], num: int, summarise: Callable) -> list[dict[s
     return out
 
 
-def _seed_batched(trainer: Trainer, num_seeds: int) -> Callable:
+def seed_batched(trainer: Trainer, num_seeds: int) -> Callable:
     """`trainer.updates` over a leading seed axis. One seed runs unbatched: under `vmap` the
     KL stop's while-loop predicate is batched, which selects the whole carry every epoch."""
     if num_seeds > 1:
@@ -145,7 +145,7 @@ def train_in_run_dir(
         log(f"resumed at update {int(runner.update[0])} from {run_dir / CHECKPOINT} "
             f"after {wall_before:.1f}s of training")
     # One compiled chunk for every chunk: a shorter last chunk runs the same scan, partly idle.
-    updates = jax.jit(_seed_batched(trainer, num_seeds), static_argnums=1, donate_argnums=0)
+    updates = jax.jit(seed_batched(trainer, num_seeds), static_argnums=1, donate_argnums=0)
     total = cfg.num_updates if max_updates is None else min(cfg.num_updates, max_updates)
     start_wall = time.perf_counter()
     done_at_start = done = int(runner.update[0])
