@@ -18,7 +18,7 @@ from pathlib import Path
 
 import jax
 
-from specrl_jax.baselines import experiment
+from specrl_jax.baselines import experiment, ltl2action
 from specrl_jax.cli import env_option
 from specrl_jax.eval import report
 
@@ -54,9 +54,18 @@ def main() -> None:
     parser.add_argument("--suites", nargs="+", default=None, help="default: the world's paper suites")
     parser.add_argument("--env-option", type=env_option, action="append", default=[], metavar="KEY=VALUE",
                         help="an override of the world passed to make(), e.g. image_size=64 (repeatable)")
+    parser.add_argument("--ltl2action-sampler", default=None, metavar="NAME",
+                        help="LTL2Action's training formulas: 'curriculum' (the world's DeepLTL "
+                             "curriculum) or an original sampler such as Until_1_3_1_2; default "
+                             "ltl2action.SAMPLERS")
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     env_options = dict(args.env_option)
+    if args.ltl2action_sampler is not None:
+        world_family = experiment.family(args.env)
+        # validated here; training, loading and evaluation all build the method from SAMPLERS
+        ltl2action.check_sampler(world_family, args.ltl2action_sampler)
+        ltl2action.SAMPLERS[world_family] = args.ltl2action_sampler
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

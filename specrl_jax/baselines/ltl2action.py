@@ -1,9 +1,11 @@
 """LTL2Action (Vaezipoor et al., ICML'21): policies conditioned on the progressed LTL formula.
 
-The task loop runs a `tasks.progression.ProgressionSource`: each episode draws a formula from a
-bank sampled by one of the original's training distributions (LetterWorld `Until_1_3_1_2`, its
-avoidance tasks; ZoneEnv `Until_1_2_1_1`; see `SAMPLERS`), and every label progresses it; +1 and the end of the episode when it progresses
-to true, -1 and the end when it progresses to false. The network reads the current formula's
+The task loop runs a progression source: each episode draws a formula from a bank, and every
+label progresses it; +1 and the end of the episode when it progresses to true, -1 and the end
+when it progresses to false. The bank holds (`SAMPLERS`) the world's DeepLTL curriculum as
+formulas, whose stages advance on the agent's success (LetterWorld, ZoneEnv;
+`tasks.curriculum_progression`), or draws of one of the original's samplers (`Until_1_3_1_2`,
+`Eventually_1_5_1_4`, `Until_1_2_1_1`, ...; the arm). The network reads the current formula's
 syntax tree through a relational GCN (`RGCNEncoder`: 8 rounds of one shared relational
 convolution over 4 edge types, hidden 32, readout at the root, 32-d embedding), concatenated with
 the observation embedding, into an actor [64, 64, 64] ReLU and a critic [64, 64] Tanh. Dense
@@ -33,7 +35,9 @@ from specrl_jax.baselines.ppo.networks import (
 )
 from specrl_jax.baselines.ppo.train import PPOConfig, world_config
 from specrl_jax.baselines.train_env import TaskTrainEnv
+from specrl_jax.specs import CurriculumSampler
 from specrl_jax.tasks import StatefulPolicy, TaskEnv
+from specrl_jax.tasks.curriculum_progression import CurriculumProgressionSource, stage_formulas
 from specrl_jax.tasks.progression import (
     NUM_EDGE_TYPES,
     ProgressionBank,
@@ -43,11 +47,14 @@ from specrl_jax.tasks.progression import (
     step_state,
 )
 
-#: training formula distribution per world family. The original's LetterWorld command trains on
-#: `Eventually_1_5_1_4`, which has no avoidance: such an agent violates 0.65 of the paper's Letter
-#: IND episodes against the paper's 0.13, so Letter trains on the original's avoidance sampler
-#: (docs/fidelity.md, benchmarks/RESULTS.md)
-SAMPLERS = {"letter": "Until_1_3_1_2", "zone": "Until_1_2_1_1", "arm": "Until_1_2_1_1"}
+#: training formula distribution per world family: "curriculum" (the family's DeepLTL curriculum
+#: as formulas, the task distribution the paper calls IND for every baseline) or an original
+#: sampler name. The original trains LetterWorld on `Eventually_1_5_1_4` and ZoneEnv on
+#: `Until_1_2_1_1`, neither of which holds the paper's IND formulas (docs/fidelity.md,
+#: benchmarks/RESULTS.md); the arm has no curriculum and keeps `Until_1_2_1_1`
+SAMPLERS = {"letter": "curriculum", "zone": "curriculum", "arm": "Until_1_2_1_1"}
+#: the DeepLTL curriculum of each family that has one
+CURRICULA = {"letter": "deepltl/letter", "zone": "deepltl/zone"}
 #: the suites whose formulas the test-time agent recognises unless told otherwise
 DEFAULT_SUITES = ("letter/finite/ind", "letter/finite/ood", "letter/infinite/rsp",
                   "letter/infinite/rec", "zone/finite/ind", "zone/finite/ood",
@@ -176,7 +183,8 @@ def network_for(world: Any) -> LTL2ActionNetwork:
 
 @dataclasses.dataclass(frozen=True)
 class LTL2Action:
-    """The LTL2Action method for the shared trainer: the task loop over a progression source."""
+    """The LTL2Action method for the shared trainer: the task loop over a progression source
+    (task params: the curriculum state where the source follows a curriculum, else None)."""
 
     env: TaskTrainEnv
     network: LTL2ActionNetwork
@@ -185,23 +193,58 @@ class LTL2Action:
     def bank(self) -> ProgressionBank:
         return self.env.task.source.bank
 
-    def init_task_params(self) -> None:
-        return None
+    @property
+    def follows_curriculum(self) -> bool:
+        return isinstance(self.env.task.source, CurriculumProgressionSource)
+
+    def init_task_params(self) -> Any:
+        return self.env.task.source.init_params()
 
     def update_task_params(self, task_params: Any, stats: dict[str, jax.Array]) -> Any:
-        return task_params
+        if not self.follows_curriculum:
+            return task_params
+        return self.env.task.source.update_params(task_params, stats)
+
+    def task_metrics(self, task_params: Any) -> dict[str, jax.Array]:
+        if not self.follows_curriculum:
+            return {}
+        return {"curriculum_stage": task_params.stage.astype(jnp.float32)}
+
+
+def check_sampler(family: str, sampler: str | None) -> str:
+    """`sampler` (default `SAMPLERS[family]`) after checking it names "curriculum" for a family
+    with one, or an original sampler.
+
+    Raises:
+        ValueError: an unknown family or sampler name, or "curriculum" for the arm.
+    """
+    if family not in SAMPLERS:
+        raise ValueError(f"unknown world family {family!r}; accepted: {', '.join(SAMPLERS)}")
+    sampler = SAMPLERS[family] if sampler is None else sampler
+    if sampler == "curriculum" and family not in CURRICULA:
+        raise ValueError(f"the {family!r} family has no curriculum (families with one: "
+                         f"{', '.join(CURRICULA)}); give an original sampler such as "
+                         "'Until_1_2_1_1'")
+    if sampler != "curriculum":
+        specs.ltl2action_sampler(sampler)  # validates the name
+    return sampler
 
 
 def training_formulas(propositions: Sequence[str], family: str = "letter", num_formulas: int = 1024,
-                      seed: int = 0) -> list[str]:
-    """`num_formulas` draws of the original's training sampler for `family` (seeded, host)."""
-    if family not in SAMPLERS:
-        raise ValueError(f"unknown world family {family!r}; accepted: {', '.join(SAMPLERS)}")
+                      seed: int = 0, sampler: str | None = None) -> list[list[str]]:
+    """The training bank's formula texts by curriculum stage (host, seeded): for `sampler`
+    "curriculum" (default: `SAMPLERS[family]`) every task of an enumerated stage and
+    `num_formulas` draws of a sampled one; for an original sampler name one list of
+    `num_formulas` draws."""
+    sampler = check_sampler(family, sampler)
     if num_formulas < 1:
         raise ValueError(f"num_formulas must be >= 1, got {num_formulas}")
-    sampler = specs.ltl2action_sampler(SAMPLERS[family])
+    if sampler == "curriculum":
+        curriculum = CurriculumSampler(specs.curriculum(CURRICULA[family]), len(propositions))
+        return stage_formulas(curriculum, propositions, num_formulas, seed)
+    draw = specs.ltl2action_sampler(sampler)
     rng = np.random.default_rng(seed)
-    return [sampler(rng, tuple(propositions)) for _ in range(num_formulas)]
+    return [[draw(rng, tuple(propositions)) for _ in range(num_formulas)]]
 
 
 def observe_formula(bank: ProgressionBank, obs_kinds: Mapping[str, str]):
@@ -219,18 +262,27 @@ _BANKS: dict[tuple, ProgressionBank] = {}
 
 def make_method(world: Any, params: Any, family: str = "letter",
                 formulas: Sequence[str] | None = None,
-                num_formulas: int = 1024, seed: int = 0) -> LTL2Action:
-    """LTL2Action on any single-agent world: a bank of `num_formulas` formulas from `family`'s
-    training sampler (or the given `formulas`), progressed on the device."""
+                num_formulas: int = 1024, seed: int = 0, sampler: str | None = None) -> LTL2Action:
+    """LTL2Action on any single-agent world, progressed on the device: the given `formulas`
+    (drawn uniformly), or `training_formulas(..., sampler)` (default `SAMPLERS[family]`; a
+    curriculum's stages advance on the episodes' success)."""
     network = network_for(world)
+    stages = None
     if formulas is None:
-        formulas = training_formulas(world.propositions, family, num_formulas, seed)
+        by_stage = training_formulas(world.propositions, family, num_formulas, seed, sampler)
+        formulas = [f for stage in by_stage for f in stage]
+        if check_sampler(family, sampler) == "curriculum":
+            stages = [len(stage) for stage in by_stage]
     alphabet = np.asarray(world.alphabet, bool)
     key = (tuple(formulas), tuple(world.propositions), alphabet.tobytes(), alphabet.shape)
     if key not in _BANKS:  # training, evaluation and loading each build the method once
         _BANKS[key] = build_bank(formulas, world.propositions, alphabet)
     bank = _BANKS[key]
-    source = ProgressionSource(bank, world.alphabet)
+    if stages is None:
+        source = ProgressionSource(bank, world.alphabet)
+    else:
+        curriculum = CurriculumSampler(specs.curriculum(CURRICULA[family]), len(world.propositions))
+        source = CurriculumProgressionSource(bank, world.alphabet, curriculum, stages)
 
     def signals(info):
         reward = info["success"].astype(jnp.float32) - info["violation"].astype(jnp.float32)
