@@ -46,16 +46,12 @@ def test_one_update_on_each_robot(env_id, module):
     cfg = module.ppo_config(experiment.family(env_id), num_envs=2, num_steps=4, num_minibatches=1,
                             update_epochs=1, total_timesteps=8)
     trainer = make_train(cfg, method)
-    if env_id.startswith("Panda"):  # the arm's exact reset and contact physics: trace only
+    if not env_id.startswith("Letter"):  # MJX worlds compile for minutes on XLA:CPU: trace only
         runner = jax.eval_shape(trainer.init, jax.random.key(0))
         out = jax.eval_shape(trainer.update, runner)[1]
         assert out["policy_loss"].shape == () and runner.update.shape == ()
         return
     runner = jax.jit(trainer.init)(jax.random.key(0))
-    if env_id in ("CarLTL0-v0", "AntLTL0-v0"):  # their XLA:CPU compile takes minutes: trace only
-        out = jax.eval_shape(trainer.update, runner)[1]
-        assert out["policy_loss"].shape == ()
-        return
     runner, metrics = jax.jit(trainer.update)(runner)
     assert int(runner.update) == 1
     assert all(np.isfinite(np.asarray(v)).all() for v in metrics.values())

@@ -20,6 +20,7 @@ from specrl_jax.envs.zone.c_reference import classic_rk4_step
 from specrl_jax.envs.zone.config import DEFAULT_SOLVERS, level_config
 from specrl_jax.envs.zone.models import ROBOTS, Solver, load_model, start_height
 from specrl_jax.envs.zone.physics import Physics
+from specrl_jax.gym import GymEnv
 
 #: The original's settings: every geom collides, MuJoCo's default solver.
 ORIGINAL = Solver(prune_contacts=False)
@@ -35,11 +36,18 @@ def start_qpos(robot: str, rng: np.random.Generator) -> np.ndarray:
     return np.array([0, 0, ROBOTS[robot].z_height, *quat, *joints[robot]])
 
 
+#: a world per robot (the physics is the robot's whatever the level); those of test_zone_gym.py
+GYM_IDS = {"Point": "PointLTL2-v0.partial_overlap", "Car": "CarLTL0-v0", "Ant": "AntLTL0-v0"}
+
+
 @functools.cache
 def zone(robot: str):
-    """(env, params, jitted reset, jitted step_env) of the level-0 world, built once."""
-    env, params = make_zone(level_config(robot, 0))
-    return env, params, jax.jit(env.reset), jax.jit(env.step_env)
+    """(env, params, jitted reset, jitted step) of the robot's world in `GYM_IDS`: the Gymnasium
+    bridge's compiled functions, which tests/envs/test_zone_gym.py compiles for the same worlds,
+    so that each robot's reset and step compile once in the suite."""
+    bridge = GymEnv(GYM_IDS[robot])
+    reset = lambda key, params: bridge._reset(key, params)[:2]  # (obs, state), without the label
+    return bridge.env, bridge.params, reset, bridge._step
 
 
 def c_rollout(model: mujoco.MjModel, qpos: np.ndarray, actions: np.ndarray) -> np.ndarray:
@@ -347,11 +355,12 @@ def test_sensor_free_substeps_and_unroll_give_the_same_steps():
     bitwise the same physics and sensors as MJX's own `step` with sensors in every substep and
     a plain loop (a box with a hinged capsule on the floor, 3 env steps)."""
     model = mujoco.MjModel.from_xml_string(_BOX)
+    # one start for both: `init` runs no substep, so the two settings cannot differ there
+    start = jax.jit(Physics(model).init)(jnp.asarray(model.qpos0, jnp.float32))
     runs = {}
     for name, kw in (("mjx", dict(substep_sensors=True)), ("ours", dict(unroll=3))):
         physics = Physics(model, **kw)
-        state = jax.jit(physics.init)(jnp.asarray(model.qpos0, jnp.float32))
-        step = jax.jit(physics.step)
+        state, step = start, jax.jit(physics.step)
         out = []
         for ctrl in (1.0, -1.0, 0.5):
             state = step(state, jnp.array([ctrl]))
