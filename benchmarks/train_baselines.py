@@ -18,7 +18,7 @@ from pathlib import Path
 
 import jax
 
-from specrl_jax.baselines import experiment, ltl2action
+from specrl_jax.baselines import experiment, ltl2action, rad
 from specrl_jax.cli import env_option
 from specrl_jax.eval import report
 
@@ -58,14 +58,19 @@ def main() -> None:
                         help="LTL2Action's training formulas: 'curriculum' (the world's DeepLTL "
                              "curriculum) or an original sampler such as Until_1_3_1_2; default "
                              "ltl2action.SAMPLERS")
+    parser.add_argument("--rad-sampler", default=None, choices=["rad", "curriculum"],
+                        help="RAD-Embeddings' training tasks: 'rad' (the original's RAD sampler) "
+                             "or 'curriculum' (the world's DeepLTL curriculum as DFAs); default "
+                             "rad.SAMPLERS")
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     env_options = dict(args.env_option)
-    if args.ltl2action_sampler is not None:
-        world_family = experiment.family(args.env)
-        # validated here; training, loading and evaluation all build the method from SAMPLERS
-        ltl2action.check_sampler(world_family, args.ltl2action_sampler)
-        ltl2action.SAMPLERS[world_family] = args.ltl2action_sampler
+    for module, sampler in ((ltl2action, args.ltl2action_sampler), (rad, args.rad_sampler)):
+        if sampler is not None:
+            world_family = experiment.family(args.env)
+            # validated here; training, loading and evaluation all build the method from SAMPLERS
+            module.check_sampler(world_family, sampler)
+            module.SAMPLERS[world_family] = sampler
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -3,15 +3,18 @@ embedding of the task's conjunction of DFAs.
 
 Training: the task loop runs a `tasks.dfa_source.DFASource` over a bank of RAD conjunctions
 (`automata.rad_sampler`, the original's `CompositionalReachAvoidDerived` sampler over the
-world's alphabet); +1 and the end of the episode when every DFA accepts, -1 and the end when
-one can no longer accept. Every observation carries the 32-d embedding of the advanced,
-minimised conjunction by the pretrained GATv2 encoder (`rad_encoder`, parameters shipped in
-`baselines/data/rad_encoder_<family>.msgpack`, made by `benchmarks/rad_pretrain.py`), frozen (the
-original's `--freeze`), so PPO never backpropagates into it. Being frozen, the encoder runs once
-per reachable state of the bank when the method is built (`rad_table`), and the task loop reads
-the embedding off that table. The network is LTL2Action's: observation encoder (grid CNN,
-vector MLP [128, 64] ReLU, image CNN) concatenated with the embedding, actor [64, 64, 64] ReLU,
-critic [64, 64] Tanh, dense layers with unit-norm weight vectors and zero biases.
+world's alphabet; `SAMPLERS` "rad", the default), or a `CurriculumDFASource` over the world's
+DeepLTL curriculum as DFAs ("curriculum": each stage's tasks as minimal DFAs, stages advancing on
+the agent's success, reach-stay tasks left out); +1 and the end of the episode when every DFA
+accepts, -1 and the end when one can no longer accept. Every observation carries the 32-d
+embedding of the advanced, minimised conjunction by the pretrained GATv2 encoder (`rad_encoder`,
+parameters shipped in `baselines/data/rad_encoder_<family>.msgpack`, made by
+`benchmarks/rad_pretrain.py`), frozen (the original's `--freeze`), so PPO never backpropagates
+into it. Being frozen, the encoder runs once per reachable state of the bank when the method is
+built (`rad_table`), and the task loop reads the embedding off that table. The network is
+LTL2Action's: observation encoder (grid CNN, vector MLP [128, 64] ReLU, image CNN) concatenated
+with the embedding, actor [64, 64, 64] ReLU, critic [64, 64] Tanh, dense layers with unit-norm
+weight vectors and zero biases.
 
 Test time (`make_policy`): the evaluated specs are the project's compiled automata; each
 co-safe spec becomes its minimal DFA of good prefixes (`rad_sampler.bank_of_specs`) and the
@@ -38,7 +41,7 @@ from specrl_jax.automata import rad_sampler
 from specrl_jax.automata.rad_sampler import DFABank
 from specrl_jax.baselines import rad_pretrain, rad_table
 from specrl_jax.baselines.encoders import check_kinds, obs_parts
-from specrl_jax.baselines.ltl2action import embedding_actor_critic
+from specrl_jax.baselines.ltl2action import CURRICULA, embedding_actor_critic
 from specrl_jax.baselines.ppo.networks import PolicyOutput
 from specrl_jax.baselines.ppo.train import PPOConfig, world_config
 from specrl_jax.baselines.rad_encoder import (
@@ -49,10 +52,16 @@ from specrl_jax.baselines.rad_encoder import (
     packing_allowance,
 )
 from specrl_jax.baselines.train_env import TaskTrainEnv
+from specrl_jax.specs import CurriculumSampler
 from specrl_jax.tasks import TaskEnv
-from specrl_jax.tasks.dfa_source import DFASource
+from specrl_jax.tasks.dfa_source import CurriculumDFASource, DFASource, curriculum_dfas
 
 DEFAULT_BANK_SIZE = 4096
+#: draws of each sampled curriculum stage (before reach-stay draws are left out)
+CURRICULUM_DRAWS = 1024
+#: training task distribution per world family: "rad" (the original's RAD sampler) or
+#: "curriculum" (the family's DeepLTL curriculum as DFAs, `ltl2action.CURRICULA`)
+SAMPLERS = {"letter": "rad", "zone": "rad", "arm": "rad"}
 
 
 class RADObs(NamedTuple):
@@ -140,14 +149,20 @@ class RAD:
     env: TaskTrainEnv
     network: RADNetwork
 
-    def init_task_params(self) -> None:
-        return None
+    def init_task_params(self) -> Any:
+        """The source's params: the curriculum state on a curriculum, else None."""
+        return self.env.task.source.init_params()
 
     def update_task_params(self, task_params: Any, stats: dict[str, jax.Array]) -> Any:
-        return task_params
+        return self.env.task.source.update_params(task_params, stats)
+
+    def task_metrics(self, task_params: Any) -> dict[str, jax.Array]:
+        if task_params is None:
+            return {}
+        return {"curriculum_stage": task_params.stage.astype(jnp.float32)}
 
 
-_BANKS: dict[tuple, tuple[DFABank, GraphBank]] = {}
+_BANKS: dict[tuple, tuple] = {}
 
 
 def training_bank(alphabet: np.ndarray, bank_size: int = DEFAULT_BANK_SIZE, seed: int = 0
@@ -162,6 +177,41 @@ def training_bank(alphabet: np.ndarray, bank_size: int = DEFAULT_BANK_SIZE, seed
     return _BANKS[key]
 
 
+def check_sampler(family: str, sampler: str | None) -> str:
+    """`sampler` (default `SAMPLERS[family]`) after checking it is "rad", or "curriculum" for a
+    family with one.
+
+    Raises:
+        ValueError: an unknown family or sampler, or "curriculum" for a family without one.
+    """
+    if family not in SAMPLERS:
+        raise ValueError(f"RAD: no sampler for world family {family!r} (families: "
+                         f"{', '.join(SAMPLERS)})")
+    sampler = SAMPLERS[family] if sampler is None else sampler
+    if sampler not in ("rad", "curriculum"):
+        raise ValueError(f"unknown RAD sampler {sampler!r}; accepted: 'rad', 'curriculum'")
+    if sampler == "curriculum" and family not in CURRICULA:
+        raise ValueError(f"the {family!r} family has no curriculum (families with one: "
+                         f"{', '.join(CURRICULA)})")
+    return sampler
+
+
+def curriculum_bank(propositions: Sequence[str], alphabet: np.ndarray, family: str,
+                    per_stage: int = CURRICULUM_DRAWS, seed: int = 0
+                    ) -> tuple[CurriculumSampler, list[int], DFABank, GraphBank]:
+    """`family`'s DeepLTL curriculum as DFAs (`dfa_source.curriculum_dfas`, `per_stage` draws of
+    a sampled stage): its sampler, the rows per stage, the bank and its graphs (built once per
+    process, as `training_bank`)."""
+    alphabet = np.asarray(alphabet, bool)
+    key = ("curriculum", family, tuple(propositions), alphabet.tobytes(), alphabet.shape,
+           per_stage, seed)
+    if key not in _BANKS:
+        sampler = CurriculumSampler(specs.curriculum(CURRICULA[family]), len(propositions))
+        tasks = curriculum_dfas(sampler, propositions, alphabet, per_stage, seed)
+        _BANKS[key] = (sampler, tasks.stage_sizes, tasks.bank, build_graphs(tasks.bank))
+    return _BANKS[key]
+
+
 #: the embedders of training banks under shipped encoders, built once per process (a table
 #: takes seconds on a GPU, minutes on a CPU; training, evaluation and loading each build the method)
 _EMBEDDERS: dict[tuple, Callable[[jax.Array, jax.Array], jax.Array]] = {}
@@ -170,22 +220,31 @@ _EMBEDDERS: dict[tuple, Callable[[jax.Array, jax.Array], jax.Array]] = {}
 def make_method(world: Any, params: Any, family: str = "letter", bank: DFABank | None = None,
                 bank_size: int = DEFAULT_BANK_SIZE, seed: int = 0,
                 encoder: str | None = None, encoder_params: Any = None,
-                encoder_layers: int = 8, max_table_rows: int = rad_table.MAX_TABLE_ROWS) -> RAD:
-    """RAD on any single-agent world: a bank of RAD conjunctions (or `bank`), embedded by the
-    frozen encoder `encoder` (default: the shipped one of `family`; or `encoder_params` of
-    `encoder_layers` rounds). The embeddings of the bank's reachable states are encoded once
-    into a table, or every step where it would exceed `max_table_rows` rows (`bank_embedder`)."""
+                encoder_layers: int = 8, max_table_rows: int = rad_table.MAX_TABLE_ROWS,
+                sampler: str | None = None, per_stage: int = CURRICULUM_DRAWS) -> RAD:
+    """RAD on any single-agent world: the training tasks are `bank` (drawn uniformly) if given,
+    else by `sampler` (default `SAMPLERS[family]`) a bank of `bank_size` RAD conjunctions ("rad")
+    or `family`'s curriculum as DFAs, `per_stage` draws of a sampled stage ("curriculum"),
+    embedded by the frozen encoder `encoder` (default: the shipped one of `family`; or
+    `encoder_params` of `encoder_layers` rounds). The embeddings of the bank's reachable states
+    are encoded once into a table, or every step where it would exceed `max_table_rows` rows
+    (`bank_embedder`)."""
     alphabet = np.asarray(world.alphabet, bool)
     encoder = family if encoder is None else encoder
     shared = bank is None and encoder_params is None
+    sampler = check_sampler(family, sampler)
     cache_key = (alphabet.tobytes(), alphabet.shape, bank_size, seed, encoder, encoder_layers,
-                 max_table_rows)
+                 max_table_rows, sampler, per_stage, family, tuple(world.propositions))
     if encoder_params is None:
         encoder_params = rad_pretrain.load_encoder(encoder, alphabet.shape[0])
-    if bank is None:
-        bank, graphs = training_bank(alphabet, bank_size, seed)
-    else:
+    curriculum = None
+    if bank is not None:
         graphs = build_graphs(bank)
+    elif sampler == "curriculum":
+        curriculum, stage_sizes, bank, graphs = curriculum_bank(world.propositions, alphabet,
+                                                                family, per_stage, seed)
+    else:
+        bank, graphs = training_bank(alphabet, bank_size, seed)
     if shared and cache_key in _EMBEDDERS:
         embed = _EMBEDDERS[cache_key]
     else:
@@ -201,7 +260,11 @@ def make_method(world: Any, params: Any, family: str = "letter", bank: DFABank |
         reward = info["success"].astype(jnp.float32) - info["violation"].astype(jnp.float32)
         return reward, jnp.zeros((), jnp.float32), jnp.zeros((), bool)
 
-    task = TaskEnv(world, DFASource(bank, world.alphabet), observe)
+    if curriculum is None:
+        source = DFASource(bank, world.alphabet)
+    else:
+        source = CurriculumDFASource(bank, world.alphabet, curriculum, stage_sizes)
+    task = TaskEnv(world, source, observe)
     return RAD(TaskTrainEnv(task, params, signals), network_for(world, encoder))
 
 

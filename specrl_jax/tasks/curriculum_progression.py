@@ -27,6 +27,8 @@ import numpy as np
 from specrl_jax.specs import CurriculumSampler
 from specrl_jax.specs.curricula import CurriculumState
 from specrl_jax.specs.formulas import sequence_to_formula
+from specrl_jax.tasks.curriculum_stages import CurriculumStages
+from specrl_jax.tasks.curriculum_stages import NEVER_TRUE as NEVER_TRUE  # this module's task id
 from specrl_jax.tasks.progression import ProgressionBank, ProgressionSource, ProgressionTask
 from specrl_jax.tasks.sources import Events
 
@@ -58,11 +60,6 @@ def stage_formulas(sampler: CurriculumSampler, propositions: Sequence[str], per_
     return out
 
 
-#: `task_id` of a formula that can never progress to true (reach-stay `!K U G p`): its episodes
-#: end by violation or time-out only, so the stage's success leaves them out
-NEVER_TRUE = -2
-
-
 def can_become_true(bank: ProgressionBank) -> np.ndarray:
     """bool[K]: some word progresses formula k to true (host fixpoint over the bank's table)."""
     delta = np.asarray(bank.delta)
@@ -76,7 +73,8 @@ def can_become_true(bank: ProgressionBank) -> np.ndarray:
 
 class CurriculumProgressionSource:
     """`ProgressionSource` whose episodes follow a curriculum: source params are the
-    `CurriculumState`; formulas of stage s are the bank's rows `start[s] .. start[s] + size[s]`.
+    `CurriculumState`; the bank's rows are the stages' formulas, stage after stage
+    (`tasks.curriculum_stages`).
 
     Events as `ProgressionSource`; a finished episode's `task_id` is its slot in an enumerated
     stage, -1 in a sampled one, `NEVER_TRUE` for a formula that cannot succeed; `update_params`
@@ -85,64 +83,34 @@ class CurriculumProgressionSource:
 
     def __init__(self, bank: ProgressionBank, alphabet: jax.Array, sampler: CurriculumSampler,
                  stage_sizes: Sequence[int]):
-        stages = sampler.curriculum.stages
-        if len(stage_sizes) != len(stages) or min(stage_sizes) < 1:
-            raise ValueError(f"need one positive size per stage of {sampler.curriculum.name} "
-                             f"({len(stages)}), got {tuple(stage_sizes)}")
-        if sum(stage_sizes) != bank.num_formulas:
-            raise ValueError(f"the stages hold {sum(stage_sizes)} formulas, the bank "
-                             f"{bank.num_formulas}")
-        for size, tasks in zip(stage_sizes, sampler.tasks):
-            if tasks is not None and size != tasks.reach.shape[0]:
-                raise ValueError(f"an enumerated stage needs all {tasks.reach.shape[0]} tasks, "
-                                 f"got {size}")
+        self.stages = CurriculumStages(sampler, stage_sizes, can_become_true(bank))
         self.base = ProgressionSource(bank, alphabet)
         self.bank = bank
         self.sampler = sampler
         self.num_tasks = bank.num_formulas
         self.may_take_epsilon = False
         self.symbol_is_row = self.base.symbol_is_row
-        self.max_size = max(stage_sizes)
-        self.start = jnp.asarray(np.cumsum([0, *stage_sizes[:-1]]), jnp.int32)
-        self.size = jnp.asarray(stage_sizes, jnp.int32)
-        self.enumerated = jnp.asarray([s.is_enumerated for s in stages])
-        self.can_succeed = jnp.asarray(can_become_true(bank))
-        # uniform where no temperature (sampled stages, or an enumerated stage without one)
-        self.inverse_temperature = jnp.asarray(
-            [0.0 if s.temperature is None else 1.0 / s.temperature for s in stages], jnp.float32)
+        self.can_succeed = self.stages.can_succeed
 
     @property
     def specs(self) -> ProgressionBank:
         return self.bank
 
     def init_params(self) -> CurriculumState:
-        return self.sampler.init()
+        return self.stages.init_params()
 
     def update_params(self, state: CurriculumState, stats: dict[str, jax.Array]
                       ) -> CurriculumState:
-        """The curriculum's stage advance from a rollout's stats `[T, B]` (`_task_id`,
-        `_finished`, `_success`), episodes of formulas that cannot succeed left out."""
-        task_id = stats["_task_id"].reshape(-1)
-        finished = stats["_finished"].reshape(-1) & (task_id != NEVER_TRUE)
-        return self.sampler.update(state, task_id, finished, stats["_success"].reshape(-1))
+        """The curriculum's stage advance (`CurriculumStages.update_params`)."""
+        return self.stages.update_params(state, stats)
 
     def reset(self, key: jax.Array, source_params: CurriculumState | None = None,
               index: jax.Array | None = None) -> ProgressionTask:
         if index is not None:
             return self.base.reset(key, None, index)
         state = self.init_params() if source_params is None else source_params
-        stage = state.stage
-        slots = jnp.arange(self.max_size)
-        success = jnp.zeros(self.max_size).at[: state.task_success.shape[0]].set(
-            state.task_success[: self.max_size])
-        logits = jnp.where(slots < self.size[stage],
-                           -success * self.inverse_temperature[stage], -jnp.inf)
-        slot = jax.random.categorical(key, logits).astype(jnp.int32)
-        formula = self.start[stage] + slot
-        task = self.base.reset(key, None, formula)
-        sampled_id = jnp.where(self.can_succeed[formula], -1, NEVER_TRUE)
-        return task.replace(
-            task_id=jnp.where(self.enumerated[stage], slot, sampled_id).astype(jnp.int32))
+        formula, task_id = self.stages.draw(key, state)
+        return self.base.reset(key, None, formula).replace(task_id=task_id)
 
     def next_index(self, task: ProgressionTask) -> None:
         return None
