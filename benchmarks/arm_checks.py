@@ -3,11 +3,17 @@ tracking gains under uniform random actions at a large batch (the reference's me
 where the compile time goes (`--parts compile`: each piece of the env step lowered and compiled
 alone, with the persistent compilation cache off), and what MJX's line-search length costs and
 changes (`--parts linesearch`), and how close each line-search length keeps MJX to MuJoCo C over
-saturated rollouts (`--parts ls_vs_c`, a CPU-sized check).
+saturated rollouts (`--parts ls_vs_c`, a CPU-sized check); the same two for the Newton solver's
+iteration cap and tolerance (`--parts iterations`, with the Newton iterations MJX runs per substep,
+and `--parts iter_vs_c`).
 
     python benchmarks/arm_checks.py --batch 4096 --steps 1000 --out arm_checks.json
     python benchmarks/arm_checks.py --parts compile --compile-batch 4 --out arm_compile.json
     python benchmarks/arm_checks.py --parts ls_vs_c --c-batch 256 --c-steps 150 --out arm_ls_c.json
+    python benchmarks/arm_checks.py --parts iter_vs_c --c-batch 96 --c-steps 150 \
+        --iterations 20 10 5 3 --tolerances 1e-6 1e-5 --out arm_iter_c.json
+    python benchmarks/arm_checks.py --parts iterations --ls-batch 4096 --ls-steps 10 \
+        --iterations 10 5 --tolerances 1e-5 --out arm_iterations.json
 
 Each part prints a line when it starts and as it progresses, and the JSON file is rewritten after
 every part, so a run cut short by a time limit still leaves what it measured.
@@ -21,6 +27,7 @@ import functools
 import json
 import sys
 import time
+from unittest import mock
 
 import jax
 import jax.numpy as jnp
@@ -33,6 +40,10 @@ from specrl_jax.envs.arm.env import ACTION_SCALE
 from specrl_jax.envs.arm.model import NEUTRAL_QPOS
 from specrl_jax.envs.arm.physics import SUBSTEPS, Physics, PhysicsState, motor_torque
 from specrl_jax.envs.wrappers import batch as batch_env
+from specrl_jax.envs.zone import small_linalg
+from specrl_jax.envs.zone.mjx_import import mjx
+
+mjx_solver = mjx._src.solver  # MJX's solver module (counting_solve), imported by mjx
 
 REFERENCE_GAINS = (0.61, 0.50, 0.82, 0.82, 0.86, 0.877, 0.878)
 
@@ -114,51 +125,59 @@ def model_with_line_search(length: int) -> mujoco.MjModel:
     return model
 
 
-def physics_with_line_search(length: int) -> Physics:
-    return Physics(model_with_line_search(length), arm_model.FORCE_LIMITS)
-
-
 def line_search(num_envs: int, num_steps: int, lengths: list[int]) -> dict:
     """The physics step with MJX's constraint solver at other line-search lengths
     (`opt.ls_iterations`, against MuJoCo's 50): MJX runs every line search as a scan of that many
     iterations (no-ops after convergence, which under `vmap` still cost a full iteration), so
-    the length sets much of a substep's time while results should not depend on it.
+    the length sets much of a substep's time while results should not depend on it
+    (`settings_timing`)."""
+    models = {str(n): model_with_line_search(n) for n in [50, *lengths]}
+    return settings_timing(models, "50", num_envs, num_steps)
 
-    A rollout of `num_steps` saturated random actions at `num_envs` arms with each length
-    (ms per env step after compile); then one env step from every state of the 50-iteration
-    rollout with each length: how many states give bit-identical joint angles and the largest
-    difference (rad)."""
+
+def settings_timing(models: dict[str, mujoco.MjModel], baseline: str, num_envs: int,
+                    num_steps: int, counting: bool = False) -> dict:
+    """The physics step at each solver setting (`models[name]`): a rollout of `num_steps`
+    saturated random actions at `num_envs` arms (ms per env step after compile); then one env
+    step from every state of the `baseline` rollout with each setting: how many states give
+    bit-identical joint angles and the largest difference (rad). With `counting`, MJX's Newton
+    iterations per substep over each setting's rollout (`iteration_summary`; a second rollout,
+    by `counting_env_step`)."""
     actions = jnp.sign(jax.random.uniform(jax.random.key(3), (num_steps, num_envs, 7),
                                           minval=-1, maxval=1))
-    start_state = jax.vmap(physics_with_line_search(50).init)(
+    start_state = jax.vmap(Physics(models[baseline], arm_model.FORCE_LIMITS).init)(
         jnp.tile(jnp.asarray(NEUTRAL_QPOS, jnp.float32), (num_envs, 1)))
     out, visited, last = {}, [], {}
-    for length in [50, *[n for n in lengths if n != 50]]:
-        p = physics_with_line_search(length)
-        step = jax.jit(jax.vmap(lambda s, a, p=p: p.step(s, s.qpos + 0.05 * a)))
+    for name in [baseline, *[n for n in models if n != baseline]]:
+        physics = Physics(models[name], arm_model.FORCE_LIMITS)
+        step = env_step(physics)
         start = time.perf_counter()
         state = jax.block_until_ready(step(start_state, actions[0]))
         compile_s = time.perf_counter() - start
         state = start_state
         start = time.perf_counter()
         for t in range(num_steps):
-            if length == 50:
+            if name == baseline:
                 visited.append(state)
             state = step(state, actions[t])
         jax.block_until_ready(state)
-        out[length] = {"ms_per_env_step": 1000 * (time.perf_counter() - start) / num_steps,
-                       "first_call_s": compile_s}
-        last[length] = step
-        log(f"line search {length}: {json.dumps(out[length])}")
+        out[name] = {"ms_per_env_step": 1000 * (time.perf_counter() - start) / num_steps,
+                     "first_call_s": compile_s}
+        if counting:
+            run = mjx_rollout(counting_env_step(physics), start_state, np.asarray(actions))
+            out[name]["newton_iterations"] = iteration_summary(run["newton_iterations"],
+                                                               run["engaged"])
+        last[name] = step
+        log(f"settings {name}: {json.dumps(out[name])}")
     states = jax.tree.map(lambda *x: jnp.concatenate(x), *visited)
     flat_actions = actions.reshape(-1, 7)
-    reference = np.asarray(last[50](states, flat_actions).qpos)
-    for length, row in out.items():
-        if length != 50:
-            diff = np.abs(np.asarray(last[length](states, flat_actions).qpos) - reference).max(1)
+    reference = np.asarray(last[baseline](states, flat_actions).qpos)
+    for name, row in out.items():
+        if name != baseline:
+            diff = np.abs(np.asarray(last[name](states, flat_actions).qpos) - reference).max(1)
             row.update(states=int(diff.size), identical=int((diff == 0).sum()),
                        max_abs_dq=float(diff.max()))
-            log(f"line search {length} against 50: {json.dumps(row)}")
+            log(f"settings {name} against {baseline}: {json.dumps(row)}")
     return out
 
 
@@ -231,15 +250,116 @@ def env_step(physics: Physics):
     return jax.jit(jax.vmap(lambda s, a: physics.step(s, s.qpos + ACTION_SCALE * a)))
 
 
+def counting_solve(m: mjx.Model, d: mjx.Data) -> mjx.Data:
+    """`mjx.solve` (mujoco 4.0.0's `mjx/_src/solver.py`, Newton, no CG branch) that also leaves its
+    Newton iteration count in `d._impl.solver_niter` (MJX's drops it): the same warm start,
+    loop condition and body, built from the module's own pieces."""
+    def cond(ctx):
+        improvement = mjx_solver._rescale(m, d, ctx.prev_cost - ctx.cost)
+        gradient = mjx_solver._rescale(m, d, mjx_solver.math.norm(ctx.grad))
+        done = ctx.solver_niter >= m.opt.iterations
+        done |= improvement < m.opt.tolerance
+        done |= gradient < m.opt.tolerance
+        return ~done
+
+    def body(ctx):
+        ctx = mjx_solver._linesearch(m, d, ctx)
+        ctx = mjx_solver._update_gradient(m, d, mjx_solver._update_constraint(m, d, ctx))
+        return ctx.replace(search=-ctx.Mgrad, solver_niter=ctx.solver_niter + 1)
+
+    assert m.opt.solver == mujoco.mjtSolver.mjSOL_NEWTON and m.opt.iterations > 1
+    warm = mjx_solver.Context.create(m, d.replace(qacc=d.qacc_warmstart), grad=False)
+    smooth = mjx_solver.Context.create(m, d.replace(qacc=d.qacc_smooth), grad=False)
+    d = d.replace(qacc=jnp.where(warm.cost < smooth.cost, d.qacc_warmstart, d.qacc_smooth))
+    ctx = jax.lax.while_loop(cond, body, mjx_solver.Context.create(m, d))
+    return d.tree_replace({"qfrc_constraint": ctx.qfrc_constraint, "qacc": ctx.qacc,
+                           "_impl.efc_force": ctx.efc_force,
+                           "_impl.solver_niter": ctx.solver_niter})
+
+
+def counted_step(physics: Physics, state: PhysicsState, target: jax.Array
+                 ) -> tuple[PhysicsState, jax.Array, jax.Array]:
+    """`physics.step` for one arm with `counting_solve`: the new state, the Newton iterations of
+    each substep int32[S], and what each substep engaged int32[S] (2: a contact at negative
+    distance, 1: a joint past its limit and no contact, 0: neither)."""
+    low, high = physics.mj_model.jnt_range.T
+
+    def substep(i, carry):
+        state, niter, engaged = carry
+        data = physics.data(state).replace(qacc_warmstart=state.qacc_warmstart)
+        with mock.patch.object(mjx, "solve", counting_solve):
+            data = physics.substep(data, target)
+        limit = jnp.any((state.qpos < low) | (state.qpos > high))
+        kind = jnp.where(jnp.any(data._impl.contact.dist < 0), 2, jnp.where(limit, 1, 0))
+        state = PhysicsState(qpos=data.qpos, qvel=data.qvel, qacc_warmstart=data.qacc_warmstart)
+        return state, niter.at[i].set(data._impl.solver_niter), engaged.at[i].set(kind)
+
+    zeros = jnp.zeros(physics.substeps, jnp.int32)
+    with small_linalg.small_cholesky():
+        return jax.lax.fori_loop(0, physics.substeps, substep, (state, zeros, zeros))
+
+
+def counting_env_step(physics: Physics):
+    """`env_step` that also returns the Newton iterations and what was engaged per substep,
+    int32[B, S] each (`counted_step`)."""
+    return jax.jit(jax.vmap(
+        lambda s, a: counted_step(physics, s, s.qpos + ACTION_SCALE * a)))
+
+
+def iteration_summary(niter: np.ndarray, engaged: np.ndarray) -> dict:
+    """MJX's Newton iterations per substep, `niter, engaged: int[T, B, S]`: a histogram overall
+    and by what the substep engaged, and what a batch pays (a `vmap`ped while loop runs until
+    its slowest arm is done): the mean over substeps of the slowest arm's count among groups
+    of 1 (the mean), 16 and all B arms, and the most."""
+    out = {"substeps": int(niter.size), "hist": np.bincount(niter.ravel()).tolist()}
+    for code, kind in enumerate(("free", "limit only", "contact")):
+        mask = engaged == code
+        if mask.any():
+            out[kind] = {"substeps": int(mask.sum()), "mean": float(niter[mask].mean()),
+                         "max": int(niter[mask].max()),
+                         "hist": np.bincount(niter[mask]).tolist()}
+    num_steps, num_envs, substeps = niter.shape
+    out["slowest_arm_mean"] = {}
+    for group in sorted({1, 16, num_envs}):
+        if num_envs % group == 0:
+            grouped = niter.reshape(num_steps, num_envs // group, group, substeps).max(2)
+            out["slowest_arm_mean"][str(group)] = float(grouped.mean())
+    out["max"] = int(niter.max())
+    return out
+
+
+def counting_step_identical(plain: dict, counted: dict, ref: dict, actions: np.ndarray,
+                            times: np.ndarray) -> dict:
+    """Per name, how many of the states at `times` (C's, as `one_step_from_c`) give joint angles
+    bit-identical under `counted[name]` and `plain[name]`, and of how many."""
+    out = {}
+    for name in counted:
+        same = 0
+        for t in times:
+            state = PhysicsState(qpos=ref["qpos"][t].astype(np.float32),
+                                 qvel=ref["qvel"][t].astype(np.float32),
+                                 qacc_warmstart=ref["qacc_warmstart"][t].astype(np.float32))
+            action = jnp.asarray(actions[t])
+            a = np.asarray(plain[name](state, action).qpos)
+            b = np.asarray(counted[name](state, action)[0].qpos)
+            same += int((a == b).all(-1).sum())
+        out[name] = [same, int(len(times) * actions.shape[1])]
+    return out
+
+
 def mjx_rollout(step, start: PhysicsState, actions: np.ndarray) -> dict:
     """`qpos`, `qvel` float32[T + 1, B, 7] of MJX from `start` under `actions` (float[T, B, 7]),
-    one call of `step` (an `env_step`) per Python iteration."""
-    state, qpos, qvel = start, [start.qpos], [start.qvel]
+    one call of `step` (an `env_step`) per Python iteration; with a `counting_env_step`, also
+    `newton_iterations` and `engaged` int32[T, B, S]."""
+    state, rows = start, {"qpos": [start.qpos], "qvel": [start.qvel]}
     for action in actions:
-        state = step(state, jnp.asarray(action))
-        qpos.append(state.qpos)
-        qvel.append(state.qvel)
-    return {"qpos": np.asarray(jnp.stack(qpos)), "qvel": np.asarray(jnp.stack(qvel))}
+        result = step(state, jnp.asarray(action))
+        state, *counts = result if isinstance(result, tuple) else (result,)
+        rows["qpos"].append(state.qpos)
+        rows["qvel"].append(state.qvel)
+        for key, value in zip(("newton_iterations", "engaged"), counts):
+            rows.setdefault(key, []).append(value)
+    return {key: np.asarray(jnp.stack(value)) for key, value in rows.items()}
 
 
 def error_summary(err: np.ndarray, checkpoints: tuple[int, ...] = (10, 50, 100, 150)) -> dict:
@@ -276,11 +396,12 @@ def label_summary(ours: np.ndarray, ref: np.ndarray) -> dict:
             "first_visit_pairs_differing": int((first(ours) != first(ref)).sum())}
 
 
-def one_step_from_c(steps: dict, ref: dict, actions: np.ndarray, times: np.ndarray) -> dict:
+def one_step_from_c(steps: dict, ref: dict, actions: np.ndarray, times: np.ndarray,
+                    baseline: str = "50") -> dict:
     """One env step from C's states (joint angles, velocities, warm start) at `times` with each
     `steps[name] = (env_step, nudge)` (`nudge`: joint angles one float32 step up); per name
     |q_MJX - q_C| (largest joint, rad) overall and by what C's step engaged, and against
-    "50" the bit-identical count and largest difference."""
+    `baseline` (a name of `steps`) the bit-identical count and largest difference."""
     kind = np.where(ref["ncon"][times] > 0, "contact",
                     np.where(ref["nl"][times] > 0, "limit only", "free"))
     after, out = {}, {}
@@ -301,27 +422,33 @@ def one_step_from_c(steps: dict, ref: dict, actions: np.ndarray, times: np.ndarr
             if (kind == k).any():
                 row[k] = [int((kind == k).sum()), float(np.median(err[kind == k])),
                           float(np.percentile(err[kind == k], 99)), float(err[kind == k].max())]
-        if name != "50":
-            diff = np.abs(after[name] - after["50"]).max(-1)
-            row.update(identical_to_50=int((diff == 0).sum()), max_vs_50=float(diff.max()),
-                       differing_with_contact=int(((diff > 0) & (kind == "contact")).sum()))
+        if name != baseline:
+            diff = np.abs(after[name] - after[baseline]).max(-1)
+            row.update({f"identical_to_{baseline}": int((diff == 0).sum()),
+                        f"max_vs_{baseline}": float(diff.max()),
+                        "differing_with_contact": int(((diff > 0) & (kind == "contact")).sum())})
         out[name] = row
-        log(f"ls_vs_c: one step, {name}: {json.dumps(row)}")
+        log(f"vs C: one step, {name}: {json.dumps(row)}")
     return out
 
 
-def line_search_vs_c(num_envs: int, num_steps: int, lengths: list[int], stride: int) -> dict:
-    """MJX at each line-search length against MuJoCo C (float64, MuJoCo's 50) under the same
-    control law, `num_envs` arms from the neutral pose under `saturated_actions`:
+def solver_vs_c(models: dict[str, mujoco.MjModel], baseline: str, c_reference: mujoco.MjModel,
+                num_envs: int, num_steps: int, stride: int, counting: bool = False) -> dict:
+    """MJX at each solver setting (`models[name]`) against MuJoCo C (float64, `c_reference`'s
+    setting) under the same control law, `num_envs` arms from the neutral pose under
+    `saturated_actions`:
 
-    - `c_engaged`: what C's steps engaged, and its line-search cost evaluations per step;
-    - `c_cap`: C itself at the shorter lengths (C's cap counts cost evaluations; C stops at
-      `ls_tolerance`), largest |q - q_C50| over the rollout;
-    - `free`: free-running |q_MJX - q_C| (largest joint, rad) per length, and `pairs`
-      |q_MJX(n) - q_MJX(50)|, beside `rounding_twin`: MJX 50 from joint angles one float32
-      step away (np.nextafter), the spread that rounding alone gives;
+    - `c_engaged`: what C's steps engaged, its Newton iterations and line-search cost
+      evaluations per step;
+    - `c_cap`: C itself at each other setting, largest |q - q_C| over the rollout;
+    - `free`: free-running |q_MJX - q_C| (largest joint, rad) per setting, and `pairs`
+      |q_MJX(name) - q_MJX(baseline)|, beside `rounding_twin`: MJX at `baseline` from joint
+      angles one float32 step away (np.nextafter), the spread that rounding alone gives;
     - `labels`: mode-0 labels (regions of one bank layout per arm) against C's;
-    - `one_step`: `one_step_from_c` every `stride` steps.
+    - `one_step`: `one_step_from_c` every `stride` steps;
+    - with `counting`, `newton_iterations`: MJX's Newton iterations per substep of each free
+      run (`iteration_summary`), the runs stepped by `counting_env_step`, which is checked
+      to give the joint angles of the plain step at every one-step state.
     """
     env, params = specrl_jax.make("PandaLTLReach0Joints-v0")
     regions = env.with_map_bank(jax.random.key(6), params, num_envs).layout_bank
@@ -338,38 +465,101 @@ def line_search_vs_c(num_envs: int, num_steps: int, lengths: list[int], stride: 
     start = PhysicsState(qpos=neutral, qvel=np.zeros_like(neutral),
                          qacc_warmstart=np.zeros_like(neutral))
     t0 = time.perf_counter()
-    ref = c_rollout(model_with_line_search(50), start, actions)
-    log(f"ls_vs_c: C rollout {time.perf_counter() - t0:.0f} s")
+    ref = c_rollout(c_reference, start, actions)
+    log(f"vs C: C rollout {time.perf_counter() - t0:.0f} s")
     out = {"batch": num_envs, "steps": num_steps,
            "c_engaged": {"steps_with_contact": float((ref["ncon"] > 0).mean()),
                          "arms_with_contact": int((ref["ncon"] > 0).any(0).sum()),
                          "steps_with_limit": float((ref["nl"] > 0).mean()),
                          "newton_iterations_max": int(ref["newton_iterations"].max()),
+                         "newton_iterations_hist": np.bincount(
+                             ref["newton_iterations"].ravel()).tolist(),
                          "ls_evals_hist": np.bincount(ref["ls_evals"].ravel()).tolist()},
            "c_cap": {}, "free": {}, "pairs": {}, "labels": {}}
-    for n in lengths:
-        short = c_rollout(model_with_line_search(n), start, actions)
-        out["c_cap"][n] = float(np.abs(short["qpos"] - ref["qpos"]).max())
-        log(f"ls_vs_c: C at {n}: {out['c_cap'][n]}")
+    for name, model in models.items():
+        if name != baseline:
+            short = c_rollout(model, start, actions)
+            out["c_cap"][name] = float(np.abs(short["qpos"] - ref["qpos"]).max())
+            log(f"vs C: C at {name}: {out['c_cap'][name]}")
     ref_labels = np.asarray(labels(ref["qpos"]))
 
-    compiled = {n: env_step(physics_with_line_search(n)) for n in [50, *lengths]}
-    steps = {str(n): (compiled[n], False) for n in [50, *lengths]}
-    steps["rounding_twin"] = (compiled[50], True)
+    physics = {name: Physics(model, arm_model.FORCE_LIMITS) for name, model in models.items()}
+    compiled = {name: env_step(p) for name, p in physics.items()}
+    steps = {name: (compiled[name], False) for name in models}
+    steps["rounding_twin"] = (compiled[baseline], True)
+    if counting:
+        counted = {name: counting_env_step(p) for name, p in physics.items()}
+        out["newton_iterations"] = {}
     runs = {}
     for name, (step, nudge) in steps.items():
         t0 = time.perf_counter()
         first = start.replace(qpos=np.nextafter(neutral, np.float32(np.inf))) if nudge else start
-        runs[name] = mjx_rollout(step, first, actions)
+        runs[name] = mjx_rollout(counted[name if not nudge else baseline] if counting else step,
+                                 first, actions)
         out["free"][name] = error_summary(np.abs(runs[name]["qpos"] - ref["qpos"]).max(-1))
         out["free"][name]["seconds"] = time.perf_counter() - t0
         out["labels"][name] = label_summary(np.asarray(labels(runs[name]["qpos"])), ref_labels)
-        if name != "50":
+        if counting:
+            out["newton_iterations"][name] = iteration_summary(runs[name]["newton_iterations"],
+                                                               runs[name]["engaged"])
+        if name != baseline:
             out["pairs"][name] = error_summary(
-                np.abs(runs[name]["qpos"] - runs["50"]["qpos"]).max(-1))
-        log(f"ls_vs_c: MJX {name}: {json.dumps(out['free'][name])} labels "
+                np.abs(runs[name]["qpos"] - runs[baseline]["qpos"]).max(-1))
+        log(f"vs C: MJX {name}: {json.dumps(out['free'][name])} labels "
             f"{json.dumps(out['labels'][name])}")
-    out["one_step"] = one_step_from_c(steps, ref, actions, np.arange(0, num_steps, stride))
+    times = np.arange(0, num_steps, stride)
+    out["one_step"] = one_step_from_c(steps, ref, actions, times, baseline)
+    if counting:
+        out["counting_step_identical"] = counting_step_identical(compiled, counted, ref, actions,
+                                                                 times)
+        log(f"vs C: counting step identical: {json.dumps(out['counting_step_identical'])}")
+    return out
+
+
+def line_search_vs_c(num_envs: int, num_steps: int, lengths: list[int], stride: int) -> dict:
+    """`solver_vs_c` over MJX's line-search lengths (`opt.ls_iterations`) against MuJoCo's 50,
+    C at 50."""
+    models = {str(n): model_with_line_search(n) for n in [50, *lengths]}
+    return solver_vs_c(models, "50", models["50"], num_envs, num_steps, stride)
+
+
+def model_with_solver(iterations: int, tolerance: float, ls_iterations: int | None = None
+                      ) -> mujoco.MjModel:
+    """The registered arm model with the Newton solver's `opt.iterations` and `opt.tolerance`
+    (and `opt.ls_iterations` if given; otherwise `assets/panda.xml`'s)."""
+    model = copy.deepcopy(arm_model.load_model())
+    model.opt.iterations, model.opt.tolerance = iterations, tolerance
+    if ls_iterations is not None:
+        model.opt.ls_iterations = ls_iterations
+    return model
+
+
+def solver_settings(iterations: list[int], tolerances: list[float]) -> dict[str, tuple]:
+    """Named `(iterations, tolerance)` settings: MuJoCo's default "100/1e-08" first, then each
+    cap at 1e-8 and each tolerance at 100 iterations."""
+    pairs = [(100, 1e-8), *[(n, 1e-8) for n in iterations], *[(100, t) for t in tolerances]]
+    return {f"{n}/{t:.0e}": (n, t) for n, t in pairs}
+
+
+def iterations_vs_c(num_envs: int, num_steps: int, iterations: list[int],
+                    tolerances: list[float], stride: int) -> dict:
+    """`solver_vs_c` over the Newton solver's iteration cap and tolerance (MJX's line search as
+    in `assets/panda.xml`) against MuJoCo's defaults 100 / 1e-8, C at MuJoCo's defaults
+    (line search 50 too), with MJX's Newton iterations counted; then those iterations under
+    uniform random actions at the default setting (`random_actions`)."""
+    settings = solver_settings(iterations, tolerances)
+    models = {name: model_with_solver(*setting) for name, setting in settings.items()}
+    out = solver_vs_c(models, "100/1e-08", model_with_solver(100, 1e-8, ls_iterations=50),
+                      num_envs, num_steps, stride, counting=True)
+    physics = Physics(models["100/1e-08"], arm_model.FORCE_LIMITS)
+    actions = np.asarray(jax.random.uniform(jax.random.key(7), (num_steps, num_envs, 7),
+                                            minval=-1.0, maxval=1.0))
+    neutral = np.tile(NEUTRAL_QPOS, (num_envs, 1)).astype(np.float32)
+    start = PhysicsState(qpos=neutral, qvel=np.zeros_like(neutral),
+                         qacc_warmstart=np.zeros_like(neutral))
+    run = mjx_rollout(counting_env_step(physics), start, actions)
+    out["random_actions"] = iteration_summary(run["newton_iterations"], run["engaged"])
+    log(f"iter_vs_c: random actions: {json.dumps(out['random_actions'])}")
     return out
 
 
@@ -387,7 +577,6 @@ def compile_pieces(num_envs: int, num_steps: int, pieces: list[str] | None = Non
     from jax.experimental.compilation_cache import compilation_cache
 
     from specrl_jax.envs.arm import layout as layout_lib
-    from specrl_jax.envs.zone import small_linalg
 
     # importing specrl_jax switched the persistent cache on (and compiled through it): off and
     # reset, so every piece compiles afresh
@@ -460,11 +649,16 @@ def main() -> None:
     parser.add_argument("--gain-batch", type=int, default=256)
     parser.add_argument("--gain-steps", type=int, default=400)
     parser.add_argument("--parts", nargs="+",
-                        choices=("gains", "nan", "compile", "linesearch", "ls_vs_c"),
+                        choices=("gains", "nan", "compile", "linesearch", "ls_vs_c",
+                                 "iterations", "iter_vs_c"),
                         default=("gains", "nan"))
-    parser.add_argument("--ls-batch", type=int, default=4096)
-    parser.add_argument("--ls-steps", type=int, default=20)
+    parser.add_argument("--ls-batch", type=int, default=4096, help="linesearch, iterations")
+    parser.add_argument("--ls-steps", type=int, default=20, help="linesearch, iterations")
     parser.add_argument("--ls-lengths", type=int, nargs="+", default=[10, 5])
+    parser.add_argument("--iterations", type=int, nargs="+", default=[20, 10, 5, 3],
+                        help="iterations, iter_vs_c: Newton iteration caps (at tolerance 1e-8)")
+    parser.add_argument("--tolerances", type=float, nargs="+", default=[1e-6, 1e-5],
+                        help="iterations, iter_vs_c: Newton tolerances (at 100 iterations)")
     parser.add_argument("--c-batch", type=int, default=256)
     parser.add_argument("--c-steps", type=int, default=150)
     parser.add_argument("--c-stride", type=int, default=5,
@@ -503,6 +697,18 @@ def main() -> None:
         log(f"ls_vs_c: {args.c_batch} arms x {args.c_steps} saturated steps against MuJoCo C")
         results["ls_vs_c"] = line_search_vs_c(args.c_batch, args.c_steps, args.ls_lengths,
                                               args.c_stride)
+        save()
+    if "iterations" in args.parts:
+        log(f"iterations: {args.ls_batch} arms x {args.ls_steps} saturated steps")
+        models = {name: model_with_solver(*setting) for name, setting
+                  in solver_settings(args.iterations, args.tolerances).items()}
+        results["iterations"] = settings_timing(models, "100/1e-08", args.ls_batch,
+                                                args.ls_steps, counting=True)
+        save()
+    if "iter_vs_c" in args.parts:
+        log(f"iter_vs_c: {args.c_batch} arms x {args.c_steps} saturated steps against MuJoCo C")
+        results["iter_vs_c"] = iterations_vs_c(args.c_batch, args.c_steps, args.iterations,
+                                               args.tolerances, args.c_stride)
         save()
     if "nan" in args.parts:
         for env_id in ("PandaLTLReach0Joints-v0", "PandaLTLReach1Joints-v0"):

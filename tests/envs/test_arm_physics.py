@@ -1,6 +1,8 @@
 """The arm's emulated PyBullet position motor: the box-limited motor problem, one env step
 against MuJoCo C under the same control law, and the original's measured tracking gains."""
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -77,43 +79,43 @@ def test_one_env_step_matches_mujoco_c_under_the_same_control(physics):
         assert np.abs(np.asarray(state.qvel) - data.qvel).max() < 2e-2
 
 
-def _contact_model(ls_iterations=None):
-    """The arm model with 7 of its 13 contact pairs, optionally another line-search length: a
-    subset keeps MJX's compile short and still mixes every face shape (6-, 5-, 3- and 4-cornered
-    polygons), a mesh shared by two geoms, and both kinds of pair."""
+#: MuJoCo's default Newton solver, the reference's (C) and the baseline of the caps under test
+MUJOCO_SOLVER = {"ls_iterations": 50, "iterations": 100, "tolerance": 1e-8}
+
+
+def _contact_model(**option):
+    """The arm model with 7 of its 13 contact pairs, optionally other solver options
+    (`spec.option` attributes): a subset keeps MJX's compile short and still mixes every face
+    shape (6-, 5-, 3- and 4-cornered polygons), a mesh shared by two geoms, and both kinds of
+    pair."""
     keep = {("link4", "table"), ("link5", "table"), ("link6", "table"), ("leftfinger", "table"),
             ("rightfinger", "table"), ("hand", "floor"), ("link7", "floor")}
     spec = mujoco.MjSpec.from_file(str(arm_model.MODEL_PATH))
     for pair in list(spec.pairs):
         if (pair.geomname1, pair.geomname2) not in keep:
             spec.delete(pair)
-    if ls_iterations is not None:
-        spec.option.ls_iterations = ls_iterations
+    for name, value in option.items():
+        setattr(spec.option, name, value)
     return spec.compile()
 
 
-def test_one_env_step_with_contacts_and_limits_matches_mujoco_c_at_the_line_search_cap():
-    """The model's line-search cap (`assets/panda.xml`, MJX's iterations) against MuJoCo's 50
-    and MuJoCo C (float64, 50): one env step from 48 joint angles touching the table or floor
-    (joints moving at up to 1 rad/s) and 2 at joint limits (at rest, targets into the limit).
-    The cap lands where 50 does (a cap of 2 departs by 2e-3 rad here), and both as near C as
-    `arm_checks.py --parts ls_vs_c` measured (MJX's contacts are its own: mm-level, up to
-    6e-2 rad in its 975 contact states); C on every 4th contact state (the reference motor's
-    optimiser is slow)."""
-    capped = _contact_model()
-    assert capped.opt.ls_iterations < 50  # the cap under test
-    model = _contact_model(ls_iterations=50)
+@functools.cache
+def _contact_starts():
+    """One env step's starts, float64[50, 7] joint angles, velocities and targets: 48 touching
+    the table or floor (less than 1 cm deep, joints moving at up to 1 rad/s), then 2 at joint
+    limits (shoulder and elbow next to their lower limits, at rest, targets into the limit)."""
+    model = _contact_model()
     data = mujoco.MjData(model)
     rng = np.random.default_rng(8)
     low, high = model.jnt_range[:, 0], model.jnt_range[:, 1]
     starts = []
-    while len(starts) < 48:  # touching, less than 1 cm deep
+    while len(starts) < 48:
         data.qpos[:] = rng.uniform(low, high)
         mujoco.mj_forward(model, data)
         if data.ncon and data.contact.dist[:data.ncon].min() > -0.01:
             starts.append(data.qpos.copy())
     qvel = rng.uniform(-1.0, 1.0, (len(starts), 7))
-    for joint in (1, 3):  # shoulder and elbow next to their lower limits, at rest
+    for joint in (1, 3):
         q = arm_model.NEUTRAL_QPOS.copy()
         q[joint] = low[joint] + 0.005
         starts.append(q)
@@ -121,25 +123,72 @@ def test_one_env_step_with_contacts_and_limits_matches_mujoco_c_at_the_line_sear
     qvel = np.concatenate([qvel, np.zeros((2, 7))])
     targets = starts + 0.05 * rng.choice([-1.0, 1.0], starts.shape)
     targets[-2:, (1, 3)] = starts[-2:, (1, 3)] - 0.05
-    after = {}
-    for name, m in (("cap", capped), ("50", model)):
-        physics = Physics(m, arm_model.FORCE_LIMITS)
-        state = PhysicsState(qpos=jnp.asarray(starts, jnp.float32),
-                             qvel=jnp.asarray(qvel, jnp.float32),
-                             qacc_warmstart=jnp.zeros(starts.shape, jnp.float32))
-        step = jax.jit(jax.vmap(physics.step))
-        after[name] = np.asarray(step(state, jnp.asarray(targets, jnp.float32)).qpos)
-    assert np.abs(after["cap"] - after["50"]).max() < 1e-5
-    checked = [*range(0, 48, 4), 48, 49]
+    return starts, qvel, targets
+
+
+#: the starts C steps: every 4th contact start and both limit ones (the reference motor's
+#: optimiser is slow)
+C_CHECKED = [*range(0, 48, 4), 48, 49]
+
+
+@functools.cache
+def _contact_step_mjx(**option):
+    """float32[50, 7] joint angles after one MJX env step from `_contact_starts` (zero warm
+    start) on `_contact_model(**option)`."""
+    starts, qvel, targets = _contact_starts()
+    physics = Physics(_contact_model(**option), arm_model.FORCE_LIMITS)
+    state = PhysicsState(qpos=jnp.asarray(starts, jnp.float32), qvel=jnp.asarray(qvel, jnp.float32),
+                         qacc_warmstart=jnp.zeros(starts.shape, jnp.float32))
+    step = jax.jit(jax.vmap(physics.step))
+    return np.asarray(step(state, jnp.asarray(targets, jnp.float32)).qpos)
+
+
+@functools.cache
+def _contact_step_c():
+    """float64[len(C_CHECKED), 7] joint angles after one env step on MuJoCo C (MuJoCo's default
+    solver) from the `C_CHECKED` starts."""
+    starts, qvel, targets = _contact_starts()
+    model = _contact_model(**MUJOCO_SOLVER)
     ref = []
-    for q, v, target in zip(starts[checked], qvel[checked], targets[checked]):
+    for q, v, target in zip(starts[C_CHECKED], qvel[C_CHECKED], targets[C_CHECKED]):
         data = mujoco.MjData(model)
         data.qpos[:], data.qvel[:] = q, v
         _c_step(model, data, target)
         ref.append(data.qpos.copy())
+    return np.asarray(ref)
+
+
+def _assert_as_near_c_as_measured(after: dict) -> None:
+    """Each `after[name]` (float[50, 7], one step from `_contact_starts`) as near C as
+    `arm_checks.py --parts ls_vs_c` measured (MJX's contacts are its own: mm-level, up to
+    6e-2 rad in its 975 contact states); limit states within 1e-4 rad."""
     for name, qpos in after.items():
-        err = np.abs(qpos[checked] - np.asarray(ref)).max(1)
+        err = np.abs(qpos[C_CHECKED] - _contact_step_c()).max(1)
         assert np.median(err) < 5e-3 and err.max() < 6e-2 and err[-2:].max() < 1e-4, (name, err)
+
+
+def test_one_env_step_with_contacts_and_limits_matches_mujoco_c_at_the_line_search_cap():
+    """The model's line-search cap (`assets/panda.xml`, MJX's iterations) against MuJoCo's 50
+    (MJX, the model's Newton setting) and MuJoCo C (float64, MuJoCo's default solver): one env
+    step from `_contact_starts`. The cap lands where 50 does (a cap of 2 departs by 2e-3 rad
+    here), and both as near C as measured."""
+    assert _contact_model().opt.ls_iterations < 50  # the cap under test
+    after = {"cap": _contact_step_mjx(), "50": _contact_step_mjx(ls_iterations=50)}
+    assert np.abs(after["cap"] - after["50"]).max() < 1e-5
+    _assert_as_near_c_as_measured(after)
+
+
+def test_one_env_step_with_contacts_and_limits_matches_mujoco_c_at_the_newton_cap():
+    """The model's Newton iteration cap and tolerance (`assets/panda.xml`) against MuJoCo's 100
+    and 1e-8 (MJX, the model's line search) and MuJoCo C (float64, MuJoCo's default solver):
+    one env step from `_contact_starts`. The cap lands where 100 does (caps of 5 and 3 depart by
+    2.4e-2 and 1.3e-2 rad here), and both as near C as measured."""
+    model = _contact_model()
+    assert model.opt.iterations < 100 and model.opt.tolerance == 1e-8  # the cap under test
+    after = {"cap": _contact_step_mjx(),
+             "100": _contact_step_mjx(iterations=100, tolerance=1e-8)}
+    assert np.abs(after["cap"] - after["100"]).max() < 1e-5
+    _assert_as_near_c_as_measured(after)
 
 
 def test_tracking_gains_match_the_original_under_random_actions(physics):
