@@ -1,13 +1,14 @@
 """RAD-Embeddings (Yalcinkaya et al., NeurIPS'24): policies conditioned on a pretrained, frozen
 embedding of the task's conjunction of DFAs.
 
-Training: the task loop runs a `tasks.dfa_source.DFASource` over a bank of RAD conjunctions
-(`automata.rad_sampler`, the original's `CompositionalReachAvoidDerived` sampler over the
-world's alphabet; `SAMPLERS` "rad", the default), or a `CurriculumDFASource` over the world's
-DeepLTL curriculum as DFAs ("curriculum": each stage's tasks as minimal DFAs, stages advancing on
-the agent's success, reach-stay tasks left out); +1 and the end of the episode when every DFA
-accepts, -1 and the end when one can no longer accept. Every observation carries the 32-d
-embedding of the advanced, minimised conjunction by the pretrained GATv2 encoder (`rad_encoder`,
+Training (`SAMPLERS`): LetterWorld and ZoneEnv train by default on a `CurriculumDFASource` over
+the world's DeepLTL curriculum as DFAs ("curriculum": each stage's tasks as minimal DFAs, stages
+advancing on the agent's success, reach-stay tasks left out), the distribution with which the
+paper's PointLTL0 figure reproduces (docs/fidelity.md); "rad" is the original's: a
+`tasks.dfa_source.DFASource` over a bank of RAD conjunctions (`automata.rad_sampler`, the
+`CompositionalReachAvoidDerived` sampler over the world's alphabet), the arm's default. +1 and
+the end of the episode when every DFA accepts, -1 and the end when one can no longer accept.
+Every observation carries the 32-d embedding of the advanced, minimised conjunction by the pretrained GATv2 encoder (`rad_encoder`,
 parameters shipped in `baselines/data/rad_encoder_<family>.msgpack`, made by
 `benchmarks/rad_pretrain.py`), frozen (the original's `--freeze`), so PPO never backpropagates
 into it. Being frozen, the encoder runs once per reachable state of the bank when the method is
@@ -61,7 +62,7 @@ DEFAULT_BANK_SIZE = 4096
 CURRICULUM_DRAWS = 1024
 #: training task distribution per world family: "rad" (the original's RAD sampler) or
 #: "curriculum" (the family's DeepLTL curriculum as DFAs, `ltl2action.CURRICULA`)
-SAMPLERS = {"letter": "rad", "zone": "rad", "arm": "rad"}
+SAMPLERS = {"letter": "curriculum", "zone": "curriculum", "arm": "rad"}
 
 
 class RADObs(NamedTuple):

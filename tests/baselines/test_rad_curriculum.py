@@ -99,7 +99,8 @@ def test_source_draws_the_current_stage_and_the_stage_advances():
 
 def test_make_method_samplers_and_errors():
     world, params = make_letter_world(LetterConfig(grid_size=5, letters=("a", "b", "c"), counts=1))
-    assert rad.SAMPLERS["letter"] == rad.check_sampler("letter", None) == "rad"
+    assert rad.check_sampler("letter", None) == rad.check_sampler("zone", None) == "curriculum"
+    assert rad.check_sampler("arm", None) == rad.check_sampler("letter", "rad") == "rad"
     with pytest.raises(ValueError, match="no curriculum"):
         rad.check_sampler("arm", "curriculum")
     with pytest.raises(ValueError, match="unknown RAD sampler"):
