@@ -8,7 +8,7 @@ import numpy as np
 import specrl_jax
 from specrl_jax import automata
 from specrl_jax.baselines import gcrl
-from specrl_jax.baselines.ppo import make_train
+from tiny_learning import early_late, train_rows
 from specrl_jax.baselines.ppo.networks import Categorical, PolicyOutput
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.eval import evaluate
@@ -56,10 +56,8 @@ def test_gcrl_learns_a_tiny_world_and_its_agent_follows_specs():
     updates = 80  # 60 left '!a U b' at 0.5 success on a 2-core CPU
     cfg = gcrl.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * updates,
                           update_epochs=4, num_minibatches=2)
-    runner, metrics = jax.jit(make_train(cfg, method))(jax.random.key(1))
-    rows = [gcrl.summarise({k: float(v[i]) for k, v in metrics.items()}) for i in range(updates)]
-    first = np.mean([r["success_rate"] for r in rows[:5]])
-    last = np.mean([r["success_rate"] for r in rows[-5:]])
+    runner, rows = train_rows(gcrl, method, cfg, updates)
+    first, last = early_late(rows)
     assert first < 0.4 and last > 0.6, (first, last)
 
     # the value function: trained on the critic's values of the other goal along successful runs

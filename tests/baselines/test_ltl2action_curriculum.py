@@ -10,7 +10,7 @@ import spot
 
 from specrl_jax import automata
 from specrl_jax.baselines import ltl2action
-from specrl_jax.baselines.ppo import make_train
+from tiny_learning import early_late, train_rows
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.specs import CurriculumSampler, curriculum
 from specrl_jax.tasks import SequenceSource
@@ -248,10 +248,7 @@ def test_ltl2action_learns_a_tiny_world_on_the_curriculum():
     updates = 100
     cfg = ltl2action.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * updates,
                                 update_epochs=4, num_minibatches=2)
-    _, metrics = jax.jit(make_train(cfg, method))(jax.random.key(1))
-    rows = [ltl2action.summarise({k: float(v[i]) for k, v in metrics.items()})
-            for i in range(updates)]
-    first = np.mean([r["success_rate"] for r in rows[:5]])
-    last = np.mean([r["success_rate"] for r in rows[-5:]])
+    _, rows = train_rows(ltl2action, method, cfg, updates)
+    first, last = early_late(rows)
     assert first < 0.4 and last > 0.6, (first, last)
     assert rows[0]["curriculum_stage"] == 0.0

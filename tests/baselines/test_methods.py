@@ -11,7 +11,7 @@ import pytest
 import specrl_jax
 from specrl_jax import automata
 from specrl_jax.baselines import deepltl, genz
-from specrl_jax.baselines.ppo import make_train
+from tiny_learning import early_late, train_rows
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.eval import evaluate
 from specrl_jax.tasks import TaskEnv
@@ -24,11 +24,7 @@ def _tiny_world():
 
 
 def _learning(module, method, cfg, updates):
-    _, metrics = jax.jit(make_train(cfg, method))(jax.random.key(1))
-    rows = [module.summarise({k: float(v[i]) for k, v in metrics.items()}) for i in range(updates)]
-    first = np.mean([r["success_rate"] for r in rows[:5]])
-    last = np.mean([r["success_rate"] for r in rows[-5:]])
-    return first, last
+    return early_late(train_rows(module, method, cfg, updates)[1])
 
 
 def test_genz_learns_to_reach_on_a_tiny_letter_world_through_the_task_loop():

@@ -9,7 +9,7 @@ import pytest
 from specrl_jax import automata
 from specrl_jax.automata import rad_sampler
 from specrl_jax.baselines import rad
-from specrl_jax.baselines.ppo import make_train
+from tiny_learning import early_late, train_rows
 from specrl_jax.baselines.rad_encoder import RADEncoder, build_graphs, graph_of
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.eval import evaluate
@@ -35,10 +35,8 @@ def test_rad_learns_a_tiny_letter_world_and_its_policy_solves_the_compiled_specs
     updates = 50
     cfg = rad.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * updates,
                          update_epochs=4, num_minibatches=2, lr=1e-3)
-    runner, metrics = jax.jit(make_train(cfg, method))(jax.random.key(1))
-    rows = [rad.summarise({k: float(v[i]) for k, v in metrics.items()}) for i in range(updates)]
-    first = np.mean([r["success_rate"] for r in rows[:5]])
-    last = np.mean([r["success_rate"] for r in rows[-5:]])
+    runner, rows = train_rows(rad, method, cfg, updates)
+    first, last = early_late(rows)
     assert first < 0.35 and last > 0.5, (first, last)
 
     policy = rad.make_policy(method.network, world.alphabet, world.obs_kinds,

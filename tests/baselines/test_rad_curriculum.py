@@ -11,7 +11,7 @@ import pytest
 from specrl_jax import automata
 from specrl_jax.automata import translate
 from specrl_jax.baselines import rad
-from specrl_jax.baselines.ppo import make_train
+from tiny_learning import early_late, train_rows
 from specrl_jax.baselines.rad_encoder import RADEncoder, graph_of
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.specs import CurriculumSampler, curriculum
@@ -129,10 +129,9 @@ def test_rad_trains_a_tiny_world_on_the_curriculum():
     updates = 100
     cfg = rad.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * updates,
                          update_epochs=4, num_minibatches=2, lr=1e-3)
-    _, metrics = jax.jit(make_train(cfg, method))(jax.random.key(1))
-    rows = [rad.summarise({k: float(v[i]) for k, v in metrics.items()}) for i in range(updates)]
-    success = [np.mean([r["success_rate"] for r in part]) for part in (rows[:10], rows[-10:])]
-    violation = [np.mean([r["violation_rate"] for r in part]) for part in (rows[:10], rows[-10:])]
+    _, rows = train_rows(rad, method, cfg, updates)
+    success = early_late(rows, "success_rate", window=10)
+    violation = early_late(rows, "violation_rate", window=10)
     assert success[0] < 0.3 and success[1] > 0.4, success
     assert violation[1] < violation[0], violation
     assert {r["curriculum_stage"] for r in rows} == {0.0}  # stage 0 passes at 0.95 only
