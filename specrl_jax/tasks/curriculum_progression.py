@@ -27,7 +27,7 @@ import numpy as np
 from specrl_jax.specs import CurriculumSampler
 from specrl_jax.specs.curricula import CurriculumState
 from specrl_jax.specs.formulas import sequence_to_formula
-from specrl_jax.tasks.curriculum_stages import CurriculumStages
+from specrl_jax.tasks.curriculum_stages import CurriculumStages, StagedSource
 from specrl_jax.tasks.curriculum_stages import NEVER_TRUE as NEVER_TRUE  # this module's task id
 from specrl_jax.tasks.progression import ProgressionBank, ProgressionSource, ProgressionTask
 from specrl_jax.tasks.sources import Events
@@ -71,7 +71,7 @@ def can_become_true(bank: ProgressionBank) -> np.ndarray:
         good = grown
 
 
-class CurriculumProgressionSource:
+class CurriculumProgressionSource(StagedSource):
     """`ProgressionSource` whose episodes follow a curriculum: source params are the
     `CurriculumState`; the bank's rows are the stages' formulas, stage after stage
     (`tasks.curriculum_stages`).
@@ -95,14 +95,6 @@ class CurriculumProgressionSource:
     @property
     def specs(self) -> ProgressionBank:
         return self.bank
-
-    def init_params(self) -> CurriculumState:
-        return self.stages.init_params()
-
-    def update_params(self, state: CurriculumState, stats: dict[str, jax.Array]
-                      ) -> CurriculumState:
-        """The curriculum's stage advance (`CurriculumStages.update_params`)."""
-        return self.stages.update_params(state, stats)
 
     def reset(self, key: jax.Array, source_params: CurriculumState | None = None,
               index: jax.Array | None = None) -> ProgressionTask:

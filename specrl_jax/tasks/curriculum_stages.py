@@ -78,3 +78,18 @@ class CurriculumStages:
         row = self.start[stage] + slot
         sampled_id = jnp.where(self.can_succeed[row], -1, NEVER_TRUE)
         return row, jnp.where(self.enumerated[stage], slot, sampled_id).astype(jnp.int32)
+
+
+class StagedSource:
+    """Source params and their update for a task source that follows `self.stages`
+    (`CurriculumStages`): the curriculum state, advanced on the episodes' success."""
+
+    stages: CurriculumStages
+
+    def init_params(self) -> CurriculumState:
+        return self.stages.init_params()
+
+    def update_params(self, state: CurriculumState, stats: dict[str, jax.Array]
+                      ) -> CurriculumState:
+        """The curriculum's stage advance (`CurriculumStages.update_params`)."""
+        return self.stages.update_params(state, stats)

@@ -30,7 +30,7 @@ from specrl_jax.automata.rad_sampler import DFA, DFABank, advance, build_bank, d
 from specrl_jax.specs import CurriculumSampler
 from specrl_jax.specs.curricula import CurriculumState
 from specrl_jax.tasks.curriculum_progression import stage_formulas
-from specrl_jax.tasks.curriculum_stages import CurriculumStages
+from specrl_jax.tasks.curriculum_stages import CurriculumStages, StagedSource
 from specrl_jax.tasks.sources import ByContent, Events
 
 
@@ -147,7 +147,7 @@ def curriculum_dfas(sampler: CurriculumSampler, propositions: Sequence[str],
     return CurriculumDFAs(bank, kept)
 
 
-class CurriculumDFASource(DFASource):
+class CurriculumDFASource(StagedSource, DFASource):
     """`DFASource` whose episodes follow a curriculum: source params are the `CurriculumState`;
     the bank's rows are the stages' tasks, `stage_sizes` rows per stage (`curriculum_dfas`).
 
@@ -161,14 +161,6 @@ class CurriculumDFASource(DFASource):
         # a conjunction can succeed where each conjunct can (one conjunct per task here)
         can_succeed = np.asarray(bank.live)[:, :, 0].all(axis=1)
         self.stages = CurriculumStages(sampler, stage_sizes, can_succeed)
-
-    def init_params(self) -> CurriculumState:
-        return self.stages.init_params()
-
-    def update_params(self, source_params: CurriculumState, stats: dict[str, jax.Array]
-                      ) -> CurriculumState:
-        """The curriculum's stage advance (`CurriculumStages.update_params`)."""
-        return self.stages.update_params(source_params, stats)
 
     def reset(self, key: jax.Array, source_params: CurriculumState | None = None,
               index: jax.Array | None = None) -> DFATask:
