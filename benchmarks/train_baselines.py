@@ -65,12 +65,12 @@ def main() -> None:
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
     env_options = dict(args.env_option)
-    for module, sampler in ((ltl2action, args.ltl2action_sampler), (rad, args.rad_sampler)):
+    method_options = {}  # per method: make_method's options for training, loading and evaluation
+    for method, module, sampler in (("ltl2action", ltl2action, args.ltl2action_sampler),
+                                    ("rad", rad, args.rad_sampler)):
         if sampler is not None:
-            world_family = experiment.family(args.env)
-            # validated here; training, loading and evaluation all build the method from SAMPLERS
-            module.check_sampler(world_family, sampler)
-            module.SAMPLERS[world_family] = sampler
+            module.check_sampler(experiment.family(args.env), sampler)  # fail before any work
+            method_options[method] = {"sampler": sampler}
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -85,21 +85,23 @@ def main() -> None:
     results, summaries = [], {}
     loads = dict(item.split("=", 1) for item in args.load)
     for method in args.methods:
+        options = method_options.get(method)
         if method in loads:
             params = experiment.load_params(method, args.env, loads[method], args.seeds,
-                                            env_options=env_options)
+                                            env_options=env_options, method_options=options)
             summary = summaries[method] = {"loaded_from": loads[method]}
         else:
             params, summary = experiment.train(
                 method, args.env, out / method, overrides, args.seeds, seed=args.seed, map_bank=args.map_bank,
                 chunk_updates=args.chunk, max_wall_s=args.max_wall, env_options=env_options,
+                method_options=options,
             )
             summaries[method] = summary
             print(json.dumps(summary["time_to_success"]), flush=True)
         if not args.no_eval:
             start = time.perf_counter()
             results += experiment.evaluate(method, args.env, params, suites, args.episodes,
-                                           env_options=env_options)
+                                           env_options=env_options, method_options=options)
             if args.stochastic_too:
                 # the reference's action mode (experiment.make_policy): GenZ-LTL's and every
                 # method's on ZoneEnv deterministic; DeepLTL's and GCRL-LTL's on LetterWorld sampled
@@ -107,11 +109,11 @@ def main() -> None:
                 label = experiment.METHOD_NAMES[method] + (" (sampled)" if reference_mode else " (mode)")
                 results += experiment.evaluate(method, args.env, params, suites[:2], args.episodes,
                                                deterministic=not reference_mode, label=label,
-                                               env_options=env_options)
+                                               env_options=env_options, method_options=options)
             if args.no_threshold_too and method == "deepltl":
                 results += experiment.evaluate(method, args.env, params, suites, args.episodes,
                                                label="DeepLTL (no threshold)", value_threshold=None,
-                                               env_options=env_options)
+                                               env_options=env_options, method_options=options)
             summary["eval_wall_s"] = time.perf_counter() - start
     config = {"args": vars(args), "device": str(device), "training": summaries}
     (out / "training.json").write_text(json.dumps(config, indent=1, default=str))

@@ -72,17 +72,17 @@ def suites_for(env_id: str) -> tuple[str, ...]:
 
 
 def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int | None, key: jax.Array,
-          env_options: dict[str, Any] | None = None):
+          env_options: dict[str, Any] | None = None, method_options: dict[str, Any] | None = None):
     """(world, train params, method object, PPOConfig) for `method` on `env_id` (built with
-    `make(env_id, **env_options)`); `map_bank` (LetterWorld) draws training resets from a bank of
-    that many exactly sampled maps."""
+    `make(env_id, **env_options)`, the method with `make_method(..., **method_options)`);
+    `map_bank` (LetterWorld) draws training resets from a bank of that many exactly sampled maps."""
     module = method_module(method)
     world_family = family(env_id)
     world, params = make(env_id, **(env_options or {}))
     if map_bank and world_family == "letter":
         # wait for the bank here: dispatched asynchronously, it would finish inside training
         params = jax.block_until_ready(world.with_map_bank(key, params, num_maps=map_bank))
-    method_obj = module.make_method(world, params, world_family)
+    method_obj = module.make_method(world, params, world_family, **(method_options or {}))
     return world, params, method_obj, module.ppo_config(world_family, **ppo_overrides)
 
 
@@ -90,9 +90,11 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
           seed: int = 0, map_bank: int | None = 65536, chunk_updates: int = 10,
           log: Callable[[str], None] = print, max_wall_s: float | None = None,
           restart: bool = False, devices: Sequence[Any] | None = None,
-          env_options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+          env_options: dict[str, Any] | None = None, method_options: dict[str, Any] | None = None
+          ) -> tuple[Any, dict[str, Any]]:
     """Train `num_seeds` runs; returns `(params with a leading seed axis, training summary)`.
-    `env_options` are `make`'s overrides of the world (e.g. `{"image_size": 64}`).
+    `env_options` are `make`'s overrides of the world (e.g. `{"image_size": 64}`),
+    `method_options` the method's `make_method` options (e.g. `{"sampler": "curriculum"}`).
     `restart` discards a run directory's earlier run (else it is resumed if its settings match).
     The env batch is sharded over `devices` (default: every local device; `num_envs` must
     divide by their count), parameters replicated; the result does not depend on the count
@@ -102,7 +104,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     if map_bank and family(env_id) == "letter":
         log(f"building a bank of {map_bank:,} exactly sampled maps for training resets ...")
     _world, _params, method_obj, config = build(method, env_id, ppo_overrides, map_bank, key_bank,
-                                                env_options)
+                                                env_options, method_options)
     prepare = getattr(method_module(method), "prepare_training", None)
     if prepare is not None:  # a first phase before PPO (GCRL-LTL's direction primitives)
         method_obj = prepare(method_obj, key_train, config, log)
@@ -114,7 +116,8 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     runner = runs.train_in_run_dir(
         trainer, key_train, run_dir, chunk_updates, num_seeds,
         extra_config={"method": method, "env": env_id, "map_bank": map_bank, "seed": seed,
-                      **({"env_options": dict(env_options)} if env_options else {})},
+                      **({"env_options": dict(env_options)} if env_options else {}),
+                      **({"method_options": dict(method_options)} if method_options else {})},
         summarise=method_module(method).summarise, log=log, max_wall_s=max_wall_s, restart=restart,
     )
     wall = time.perf_counter() - start
@@ -166,7 +169,7 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
              log: Callable[[str], None] = print, deterministic: bool | None = None,
              label: str | None = None, horizon: int | None = None,
              env_options: dict[str, Any] | None = None, devices: Sequence[Any] | None = None,
-             **policy_options: Any) -> list:
+             method_options: dict[str, Any] | None = None, **policy_options: Any) -> list:
     """Evaluate every trained seed (leading axis of `params`, seed i + 1 for entry i) on `suites`
     (`eval.suites.evaluate_suites`: infinite suites over 10 finite horizons unless `horizon`;
     episodes sharded over `devices`, default every local device).
@@ -177,7 +180,8 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
         suites = method_module(method).usable_suites(suites, log)
     world, env_params = make(env_id, **(env_options or {}))
     world_family = family(env_id)
-    method_obj = method_module(method).make_method(world, env_params, world_family)
+    method_obj = method_module(method).make_method(world, env_params, world_family,
+                                                   **(method_options or {}))
     if "suites" in inspect.signature(method_module(method).make_policy).parameters:
         policy_options.setdefault("suites", tuple(suites))  # LTL2Action progresses their formulas
     policy = make_policy(method, world, method_obj, deterministic, world_family, **policy_options)
@@ -190,11 +194,13 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
 
 
 def load_params(method: str, env_id: str, path: str | Path, num_seeds: int,
-                env_options: dict[str, Any] | None = None) -> Any:
+                env_options: dict[str, Any] | None = None,
+                method_options: dict[str, Any] | None = None) -> Any:
     """Read `params.msgpack` written by `train` (leading seed axis), or one seed's parameters
     without that axis (`benchmarks/results/*_params_seed1.msgpack`), returned with it."""
     world, env_params = make(env_id, **(env_options or {}))
-    method_obj = method_module(method).make_method(world, env_params, family(env_id))
+    method_obj = method_module(method).make_method(world, env_params, family(env_id),
+                                                   **(method_options or {}))
     # shapes only: running the env's reset and the network's init eagerly takes seconds on a CPU
     obs, _ = jax.eval_shape(method_obj.env.reset, jax.random.key(0), method_obj.init_task_params())
     one_obs = jax.tree.map(lambda x: jax.ShapeDtypeStruct((1, *x.shape), x.dtype), obs)
