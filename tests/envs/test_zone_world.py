@@ -215,6 +215,39 @@ def test_unplaceable_layout_is_reported():
         check_feasible(config)
 
 
+def test_feasibility_is_judged_once_per_placement_problem(monkeypatch):
+    """The Monte Carlo behind `check_feasible` runs once per placement problem (keepouts,
+    extent, tries, restarts): a second env of the same config, or one differing elsewhere,
+    reuses its rate; another problem is judged anew, and an impossible one raises every time."""
+    from specrl_jax.envs.zone import layout
+    from specrl_jax.envs.zone.env import ZoneEnv
+
+    calls = []
+    estimate = layout.attempt_success_rate
+
+    def counted(*args, **kwargs):
+        calls.append(args)
+        return estimate(*args, **kwargs)
+
+    monkeypatch.setattr(layout, "attempt_success_rate", counted)
+    layout.feasibility_rate.cache_clear()
+    config = ZoneConfig(zone_keepout=0.6)
+    first = ZoneEnv(config)._num_parallel
+    assert ZoneEnv(config)._num_parallel == first
+    assert ZoneEnv(ZoneConfig(zone_keepout=0.6, horizon=50, robot="Car"))._num_parallel == first
+    assert len(calls) == 1
+    fresh = estimate(objects(config).keepout, config.extent, config.max_tries)
+    assert layout.feasibility_rate.cache_info().currsize == 1
+    assert first == min(layout.MAX_PARALLEL, 2 ** math.ceil(math.log2(math.ceil(2.0 / fresh))))
+    check_feasible(ZoneConfig(zone_keepout=0.65))
+    assert len(calls) == 2
+    impossible = ZoneConfig(colors=("red",), zones_per_color=2, zone_keepout=1.8, max_restarts=200)
+    for _ in range(2):
+        with pytest.raises(ValueError, match="cannot place"):
+            ZoneEnv(impossible)
+    assert len(calls) == 4  # its 4000-attempt estimate and the max_restarts retry, once
+
+
 def test_custom_config_with_sixteen_colours():
     from specrl_jax.envs.zone.config import COLOR_NAMES
 

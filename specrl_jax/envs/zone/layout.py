@@ -12,6 +12,7 @@ attempt order winning. Both are the same distribution as the one-by-one original
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -97,14 +98,17 @@ def sample_positions(
     return xy, ok
 
 
-def attempt_success_rate(config: ZoneConfig, num_attempts: int = 4000, seed: int = 0) -> float:
-    """Host-side estimate of the chance that one whole-layout attempt succeeds (numpy)."""
+def attempt_success_rate(
+    keepout: np.ndarray, extent: float, max_tries: int, num_attempts: int = 4000, seed: int = 0
+) -> float:
+    """Host-side estimate of the chance that one whole-layout attempt succeeds (numpy), for
+    the placement table `keepout: [N]` (metres, agent first; `objects`)."""
     rng = np.random.default_rng(seed)
-    keepout = objects(config).keepout.astype(np.float64)
+    keepout = np.asarray(keepout, np.float64)
     xy = np.zeros((num_attempts, 0, 2))
     ok = np.ones(num_attempts, bool)
     for k in keepout:
-        cand = rng.uniform(-config.extent + k, config.extent - k, (num_attempts, config.max_tries, 2))
+        cand = rng.uniform(-extent + k, extent - k, (num_attempts, max_tries, 2))
         dist = np.linalg.norm(cand[:, :, None, :] - xy[:, None, :, :], axis=-1)
         valid = np.all(dist >= keepout[None, None, : xy.shape[1]] + k, axis=2)
         ok &= valid.any(axis=1)
@@ -113,15 +117,28 @@ def attempt_success_rate(config: ZoneConfig, num_attempts: int = 4000, seed: int
     return float(ok.mean())
 
 
+@functools.lru_cache(maxsize=None)
+def feasibility_rate(
+    keepout: tuple[float, ...], extent: float, max_tries: int, max_restarts: int
+) -> float:
+    """The success rate `check_feasible` judges, computed once per placement problem (the
+    fields of a config that fix it; a Monte Carlo of about a second, seeded, so the same)."""
+    rate = attempt_success_rate(keepout, extent, max_tries)
+    if rate == 0.0:
+        rate = attempt_success_rate(keepout, extent, max_tries, num_attempts=max_restarts, seed=1)
+    return rate
+
+
 def check_feasible(config: ZoneConfig) -> int:
     """Raise `ValueError` if the sampler cannot place the objects; return `num_parallel`.
 
     `num_parallel` is sized so that one loop iteration nearly always finds a layout, up to
     `MAX_PARALLEL`.
     """
-    rate = attempt_success_rate(config)
-    if rate == 0.0:
-        rate = attempt_success_rate(config, num_attempts=config.max_restarts, seed=1)
+    rate = feasibility_rate(
+        tuple(objects(config).keepout.tolist()), config.extent, config.max_tries,
+        config.max_restarts,
+    )
     if rate == 0.0:
         raise ValueError(
             f"cannot place the agent and {config.num_zones} zones (keepouts "
