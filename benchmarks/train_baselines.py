@@ -58,6 +58,14 @@ def main() -> None:
                         help="LTL2Action's training formulas: 'curriculum' (the world's DeepLTL "
                              "curriculum) or an original sampler such as Until_1_3_1_2; default "
                              "ltl2action.SAMPLERS")
+    parser.add_argument("--ltl2action-pretrain-steps", type=int, default=0, metavar="N",
+                        help="LTL2Action: pretrain the formula encoder on the symbol task for N "
+                             "steps before PPO (the original's LTLBootcamp; 0: none, its default)")
+    parser.add_argument("--ltl2action-encoder", default=None, metavar="PATH",
+                        help="LTL2Action: start the formula encoder from this file "
+                             "(benchmarks/ltl2action_pretrain.py)")
+    parser.add_argument("--ltl2action-freeze-encoder", action="store_true",
+                        help="LTL2Action: keep the formula encoder fixed (the original's --freeze-ltl)")
     parser.add_argument("--rad-sampler", default=None, choices=["rad", "curriculum"],
                         help="RAD-Embeddings' training tasks: 'rad' (the original's RAD sampler) "
                              "or 'curriculum' (the world's DeepLTL curriculum as DFAs); default "
@@ -71,6 +79,12 @@ def main() -> None:
         if sampler is not None:
             module.check_sampler(experiment.family(args.env), sampler)  # fail before any work
             method_options[method] = {"sampler": sampler}
+    encoder_options = {"pretrain_steps": args.ltl2action_pretrain_steps,
+                       "encoder": args.ltl2action_encoder,
+                       "freeze_encoder": args.ltl2action_freeze_encoder}
+    encoder_options = {k: v for k, v in encoder_options.items() if v}
+    if encoder_options:
+        method_options["ltl2action"] = {**method_options.get("ltl2action", {}), **encoder_options}
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -10,13 +10,17 @@ syntax tree through a relational GCN (`RGCNEncoder`: 8 rounds of one shared rela
 convolution over 4 edge types, hidden 32, readout at the root, 32-d embedding), concatenated with
 the observation embedding, into an actor [64, 64, 64] ReLU and a critic [64, 64] Tanh. Dense
 layers start as the original's: normal weights with each unit's weight vector of unit norm,
-zero biases. At test time (`make_policy`) the agent progresses the evaluated formula itself.
+zero biases. The encoder can start from parameters pretrained on the symbol task (the original's
+optional LTLBootcamp, `ltl2action_pretrain`; `make_method(pretrain_steps=...)` runs it before
+PPO) and stay frozen (`freeze_encoder`). At test time (`make_policy`) the agent progresses the
+evaluated formula itself.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping, Sequence
+import os
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -53,6 +57,8 @@ from specrl_jax.tasks.progression import (
 #: `Until_1_2_1_1`, neither of which holds the paper's IND formulas (docs/fidelity.md,
 #: benchmarks/RESULTS.md); the arm has no curriculum and keeps `Until_1_2_1_1`
 SAMPLERS = {"letter": "curriculum", "zone": "curriculum", "arm": "Until_1_2_1_1"}
+#: the R-GCN's submodule name in the LTL2Action and pretraining networks (what transfers)
+ENCODER = "RGCNEncoder_0"  # flax's automatic name, kept so that saved parameters load
 #: the DeepLTL curriculum of each family that has one
 CURRICULA = {"letter": "deepltl/letter", "zone": "deepltl/zone"}
 #: the suites whose formulas the test-time agent recognises unless told otherwise
@@ -160,25 +166,46 @@ class RGCNEncoder(nn.Module):
 class LTL2ActionNetwork(nn.Module):
     """Observation encoder (grid CNN, vector MLP [128, 64] ReLU, image CNN) and the R-GCN formula
     embedding, concatenated; actor [64, 64, 64] ReLU then logits (or a Gaussian with Tanh mean
-    and state-dependent std); critic [64, 64] Tanh."""
+    and state-dependent std); critic [64, 64] Tanh. `freeze_encoder`: no gradient reaches the
+    R-GCN (the original's `--freeze-ltl`)."""
 
     num_actions: int  # discrete actions, or the action dimension when `continuous`
     propositions: tuple[str, ...]
     continuous: bool = False
+    freeze_encoder: bool = False
 
     @nn.compact
     def __call__(self, obs: FormulaObs) -> PolicyOutput:
-        formula = RGCNEncoder(num_features(len(self.propositions)))(obs.tokens, obs.parent, obs.edge)
+        formula = RGCNEncoder(num_features(len(self.propositions)), name=ENCODER)(
+            obs.tokens, obs.parent, obs.edge)
+        if self.freeze_encoder:
+            formula = jax.lax.stop_gradient(formula)
         return embedding_actor_critic(obs.parts, formula, self.num_actions, self.continuous)
 
 
-def network_for(world: Any) -> LTL2ActionNetwork:
+def network_for(world: Any, freeze_encoder: bool = False) -> LTL2ActionNetwork:
     """The LTL2Action network for a world's action space and propositions."""
     check_kinds(world.obs_kinds)
     space, props = world.action_space, tuple(world.propositions)
     if hasattr(space, "n"):
-        return LTL2ActionNetwork(int(space.n), props)
-    return LTL2ActionNetwork(int(space.shape[0]), props, continuous=True)
+        return LTL2ActionNetwork(int(space.n), props, freeze_encoder=freeze_encoder)
+    return LTL2ActionNetwork(int(space.shape[0]), props, continuous=True,
+                             freeze_encoder=freeze_encoder)
+
+
+def with_encoder(params: Any, encoder: Any) -> Any:
+    """`params` of a network with an `ENCODER` submodule, that submodule's parameters replaced
+    by `encoder` (an R-GCN's `{"params": ...}`, e.g. `ltl2action_pretrain.encoder_params`).
+
+    Raises:
+        ValueError: `encoder` does not have the network's encoder's shapes.
+    """
+    own, given = params["params"][ENCODER], encoder["params"]
+    shapes = jax.tree.map(np.shape, own), jax.tree.map(np.shape, given)
+    if shapes[0] != shapes[1]:
+        raise ValueError(f"the pretrained encoder's parameters {shapes[1]} do not match the "
+                         f"network's R-GCN {shapes[0]} (another number of propositions?)")
+    return {**params, "params": {**params["params"], ENCODER: jax.tree.map(jnp.asarray, given)}}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -187,7 +214,12 @@ class LTL2Action:
     (task params: the curriculum state where the source follows a curriculum, else None)."""
 
     env: TaskTrainEnv
-    network: LTL2ActionNetwork
+    network: nn.Module
+    encoder: Any = None  # pretrained R-GCN parameters the network starts from, or None
+    pretrain_steps: int = 0  # symbol-task steps `prepare_training` pretrains the encoder for
+    family: str = "letter"
+    formulas: tuple[str, ...] = ()  # the training bank's formulas
+    stages: tuple[int, ...] | None = None  # their curriculum stages' sizes, in order
 
     @property
     def bank(self) -> ProgressionBank:
@@ -196,6 +228,11 @@ class LTL2Action:
     @property
     def follows_curriculum(self) -> bool:
         return isinstance(self.env.task.source, CurriculumProgressionSource)
+
+    def init_params(self, key: jax.Array, obs: FormulaObs) -> Any:
+        """The network's initial parameters, with the pretrained encoder where there is one."""
+        params = self.network.init(key, obs)
+        return params if self.encoder is None else with_encoder(params, self.encoder)
 
     def init_task_params(self) -> Any:
         return self.env.task.source.init_params()
@@ -262,17 +299,33 @@ _BANKS: dict[tuple, ProgressionBank] = {}
 
 def make_method(world: Any, params: Any, family: str = "letter",
                 formulas: Sequence[str] | None = None,
-                num_formulas: int = 1024, seed: int = 0, sampler: str | None = None) -> LTL2Action:
+                num_formulas: int = 1024, seed: int = 0, sampler: str | None = None,
+                encoder: Any = None, freeze_encoder: bool = False, pretrain_steps: int = 0,
+                stages: Sequence[int] | None = None, network: nn.Module | None = None
+                ) -> LTL2Action:
     """LTL2Action on any single-agent world, progressed on the device: the given `formulas`
-    (drawn uniformly), or `training_formulas(..., sampler)` (default `SAMPLERS[family]`; a
-    curriculum's stages advance on the episodes' success)."""
-    network = network_for(world)
-    stages = None
+    (drawn uniformly, or by curriculum stages of sizes `stages`), or `training_formulas(...,
+    sampler)` (default `SAMPLERS[family]`; a curriculum's stages advance on the episodes'
+    success).
+
+    `encoder`: pretrained R-GCN parameters (or the path of a file saved by
+    `ltl2action_pretrain.save_encoder`) the network starts from; `freeze_encoder` keeps the R-GCN
+    fixed in training (the original's `--freeze-ltl`); `pretrain_steps` > 0 (without `encoder`)
+    has `prepare_training` pretrain it on the symbol task over the same formulas first (the
+    original's LTLBootcamp, `--pretrained-gnn`); `network` replaces the LTL2Action network.
+    """
+    if pretrain_steps < 0:
+        raise ValueError(f"pretrain_steps must be >= 0, got {pretrain_steps}")
     if formulas is None:
         by_stage = training_formulas(world.propositions, family, num_formulas, seed, sampler)
         formulas = [f for stage in by_stage for f in stage]
         if check_sampler(family, sampler) == "curriculum":
             stages = [len(stage) for stage in by_stage]
+    if isinstance(encoder, (str, os.PathLike)):
+        from specrl_jax.baselines import ltl2action_pretrain
+
+        encoder = ltl2action_pretrain.load_encoder(encoder, len(world.propositions))
+    network = network_for(world, freeze_encoder) if network is None else network
     alphabet = np.asarray(world.alphabet, bool)
     key = (tuple(formulas), tuple(world.propositions), alphabet.tobytes(), alphabet.shape)
     if key not in _BANKS:  # training, evaluation and loading each build the method once
@@ -289,7 +342,24 @@ def make_method(world: Any, params: Any, family: str = "letter",
         return reward, jnp.zeros((), jnp.float32), jnp.zeros((), bool)
 
     task = TaskEnv(world, source, observe_formula(bank, world.obs_kinds))
-    return LTL2Action(TaskTrainEnv(task, params, signals), network)
+    return LTL2Action(TaskTrainEnv(task, params, signals), network, encoder, pretrain_steps,
+                      family, tuple(formulas), None if stages is None else tuple(stages))
+
+
+def prepare_training(method: LTL2Action, key: jax.Array, config: PPOConfig,
+                     log: Callable[[str], None] = print) -> LTL2Action:
+    """Before PPO: with `pretrain_steps` and no encoder yet, pretrain the R-GCN on the symbol
+    task over the method's training formulas (one encoder for every seed, as the original
+    transfers one) and return the method starting from it."""
+    if method.pretrain_steps <= 0 or method.encoder is not None:
+        return method
+    from specrl_jax.baselines import ltl2action_pretrain
+
+    world = method.env.task.env
+    encoder = ltl2action_pretrain.pretrain_encoder(
+        np.asarray(world.alphabet), tuple(world.propositions), method.formulas, method.stages,
+        method.family, jax.random.fold_in(key, 7), method.pretrain_steps, log)
+    return dataclasses.replace(method, encoder=encoder)
 
 
 def summarise(row: dict[str, float]) -> dict[str, float]:

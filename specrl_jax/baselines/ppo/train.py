@@ -96,7 +96,8 @@ def world_config(world: str, method: dict[str, Any], **overrides: Any) -> PPOCon
 
 
 class Method(Protocol):
-    """What a baseline plugs into the trainer."""
+    """What a baseline plugs into the trainer. A method may also define `init_params(key, obs)`:
+    the network's initial parameters where they are not `network.init`'s (a pretrained part)."""
 
     env: rollout.TrainEnv
     network: nn.Module
@@ -149,7 +150,8 @@ class Trainer:
         task_params = self.method.init_task_params()
         obs, env_state = rollout.reset_batch(self.method.env, key_env, self.config.num_envs, task_params)
         env_state, obs = self.constrain((env_state, obs))
-        params = self.method.network.init(key_params, jax.tree.map(lambda x: x[:1], obs))
+        init_params = getattr(self.method, "init_params", self.method.network.init)
+        params = init_params(key_params, jax.tree.map(lambda x: x[:1], obs))
         opt_state = self.optimizer.init(params)
         return RunnerState(params, opt_state, env_state, obs, task_params, key_run, jnp.zeros((), jnp.int32))
 
