@@ -219,7 +219,6 @@ class LTL2Action:
     pretrain_steps: int = 0  # symbol-task steps `prepare_training` pretrains the encoder for
     family: str = "letter"
     formulas: tuple[str, ...] = ()  # the training bank's formulas
-    stages: tuple[int, ...] | None = None  # their curriculum stages' sizes, in order
 
     @property
     def bank(self) -> ProgressionBank:
@@ -228,6 +227,13 @@ class LTL2Action:
     @property
     def follows_curriculum(self) -> bool:
         return isinstance(self.env.task.source, CurriculumProgressionSource)
+
+    @property
+    def stages(self) -> tuple[int, ...] | None:
+        """The sizes of the curriculum stages over `formulas`, in order (None: no curriculum)."""
+        if not self.follows_curriculum:
+            return None
+        return tuple(int(size) for size in np.asarray(self.env.task.source.stages.size))
 
     def init_params(self, key: jax.Array, obs: FormulaObs) -> Any:
         """The network's initial parameters, with the pretrained encoder where there is one."""
@@ -343,7 +349,7 @@ def make_method(world: Any, params: Any, family: str = "letter",
 
     task = TaskEnv(world, source, observe_formula(bank, world.obs_kinds))
     return LTL2Action(TaskTrainEnv(task, params, signals), network, encoder, pretrain_steps,
-                      family, tuple(formulas), None if stages is None else tuple(stages))
+                      family, tuple(formulas))
 
 
 def prepare_training(method: LTL2Action, key: jax.Array, config: PPOConfig,
