@@ -250,6 +250,10 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
     arg("--eval-episodes", type=nonnegative_int, default=0, help="then evaluate on the world's paper suites"),
     arg("--env-option", type=env_option, action="append", default=[], metavar="KEY=VALUE",
         help="an override of the world passed to make(), e.g. image_size=64 (repeatable)"),
+    arg("--method-option", type=env_option, action="append", default=[], metavar="KEY=VALUE",
+        help="an option of the method (repeatable), e.g. for ltl2action sampler=curriculum, "
+             "encoder=ENCODER.msgpack (a pretrained formula encoder), freeze_encoder=True, "
+             "pretrain_steps=10000000; for rad sampler=rad; a wrong key lists the accepted ones"),
 )
 def train_command(args: argparse.Namespace) -> int:
     enable_compilation_cache()
@@ -266,15 +270,16 @@ def train_command(args: argparse.Namespace) -> int:
                       if v is not None})
     out = Path(args.out or f"runs/{args.method}")
     env_options = dict(args.env_option)
+    method_options = dict(args.method_option)
     params, summary = experiment.train(args.method, args.env, out, overrides, args.seeds, args.seed,
                                        map_bank=args.map_bank or None, restart=args.restart,
-                                       env_options=env_options)
+                                       env_options=env_options, method_options=method_options)
     print(f"trained {args.seeds} x {summary['env_steps_per_seed']:,} steps, "
           f"{summary['env_steps_per_s']:,.0f} env-steps/s; run directory {out}")
     if args.eval_episodes > 0:
         results = experiment.evaluate(args.method, args.env, params,
                                       experiment.suites_for(args.env), args.eval_episodes,
-                                      env_options=env_options)
+                                      env_options=env_options, method_options=method_options)
         report.write_json(out / "eval.json", results, {"train": summary})
         print(report.markdown_tables(results))
     print(f"wrote {out}/: config.json, metrics.jsonl, checkpoint.msgpack, params.msgpack, "

@@ -52,6 +52,27 @@ def method_module(name: str):
     return METHODS[name]
 
 
+def method_options_accepted(method: str) -> tuple[str, ...]:
+    """The options `method`'s `make_method` takes beyond the world, its params and the family."""
+    names = list(inspect.signature(method_module(method).make_method).parameters)
+    return tuple(names[3:])
+
+
+def check_method_options(method: str, options: dict[str, Any] | None) -> None:
+    """A ValueError naming the options `method` does not take, and listing the ones it does."""
+    unknown = sorted(set(options or {}) - set(method_options_accepted(method)))
+    if unknown:
+        raise ValueError(f"{METHOD_NAMES[method]} has no option {', '.join(map(repr, unknown))}; "
+                         f"accepted: {', '.join(method_options_accepted(method))}")
+
+
+def make_method(method: str, world: Any, params: Any, world_family: str,
+                options: dict[str, Any] | None = None) -> Any:
+    """`method`'s `make_method(world, params, world_family, **options)`, its options checked."""
+    check_method_options(method, options)
+    return method_module(method).make_method(world, params, world_family, **(options or {}))
+
+
 def family(env_id: str) -> str:
     """The world family of a single-agent env ID ("letter", "zone", "arm")."""
     from specrl_jax.envs.registry import list_envs
@@ -77,12 +98,13 @@ def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int
     `make(env_id, **env_options)`, the method with `make_method(..., **method_options)`);
     `map_bank` (LetterWorld) draws training resets from a bank of that many exactly sampled maps."""
     module = method_module(method)
+    check_method_options(method, method_options)  # before the map bank's seconds
     world_family = family(env_id)
     world, params = make(env_id, **(env_options or {}))
     if map_bank and world_family == "letter":
         # wait for the bank here: dispatched asynchronously, it would finish inside training
         params = jax.block_until_ready(world.with_map_bank(key, params, num_maps=map_bank))
-    method_obj = module.make_method(world, params, world_family, **(method_options or {}))
+    method_obj = make_method(method, world, params, world_family, method_options)
     return world, params, method_obj, module.ppo_config(world_family, **ppo_overrides)
 
 
@@ -180,8 +202,7 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
         suites = method_module(method).usable_suites(suites, log)
     world, env_params = make(env_id, **(env_options or {}))
     world_family = family(env_id)
-    method_obj = method_module(method).make_method(world, env_params, world_family,
-                                                   **(method_options or {}))
+    method_obj = make_method(method, world, env_params, world_family, method_options)
     if "suites" in inspect.signature(method_module(method).make_policy).parameters:
         policy_options.setdefault("suites", tuple(suites))  # LTL2Action progresses their formulas
     policy = make_policy(method, world, method_obj, deterministic, world_family, **policy_options)
@@ -199,8 +220,7 @@ def load_params(method: str, env_id: str, path: str | Path, num_seeds: int,
     """Read `params.msgpack` written by `train` (leading seed axis), or one seed's parameters
     without that axis (`benchmarks/results/*_params_seed1.msgpack`), returned with it."""
     world, env_params = make(env_id, **(env_options or {}))
-    method_obj = method_module(method).make_method(world, env_params, family(env_id),
-                                                   **(method_options or {}))
+    method_obj = make_method(method, world, env_params, family(env_id), method_options)
     # shapes only: running the env's reset and the network's init eagerly takes seconds on a CPU
     obs, _ = jax.eval_shape(method_obj.env.reset, jax.random.key(0), method_obj.init_task_params())
     one_obs = jax.tree.map(lambda x: jax.ShapeDtypeStruct((1, *x.shape), x.dtype), obs)

@@ -85,3 +85,35 @@ def test_an_unwritable_output_directory_is_a_clear_error(tmp_path, capsys):
                      "--episodes", "1", "--no-progress"])
     assert code == 2
     assert "error: Not a directory" in capsys.readouterr().err
+
+
+def test_an_unknown_method_option_lists_the_accepted_ones(capsys):
+    code = cli.main(["train", "--method", "ltl2action", "--method-option", "encoder_path=x",
+                     "--total-steps", "8", "--out", "/nonexistent/never-written"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "LTL2Action has no option 'encoder_path'; accepted:" in err
+    for name in ("sampler", "encoder", "freeze_encoder", "pretrain_steps"):
+        assert name in err.split("accepted:")[1]
+
+
+def test_method_options_reach_training_and_evaluation(monkeypatch, tmp_path):
+    from specrl_jax.baselines import experiment
+
+    seen = {}
+
+    def fake_train(method, env_id, out, overrides, seeds, seed, **kwargs):
+        seen["train"] = kwargs["method_options"]
+        return {"w": jax.numpy.zeros((1, 2))}, {"env_steps_per_seed": 8, "env_steps_per_s": 1.0}
+
+    def fake_evaluate(method, env_id, params, suites, episodes, **kwargs):
+        seen["evaluate"] = kwargs["method_options"]
+        return []
+
+    monkeypatch.setattr(experiment, "train", fake_train)
+    monkeypatch.setattr(experiment, "evaluate", fake_evaluate)
+    assert cli.main(["train", "--method", "ltl2action", "--out", str(tmp_path), "--eval-episodes", "1",
+                     "--method-option", "encoder=runs/enc.msgpack", "--method-option",
+                     "freeze_encoder=True", "--method-option", "pretrain_steps=1000"]) == 0
+    expected = {"encoder": "runs/enc.msgpack", "freeze_encoder": True, "pretrain_steps": 1000}
+    assert seen == {"train": expected, "evaluate": expected}
