@@ -63,6 +63,9 @@ CURRICULUM_DRAWS = 1024
 #: training task distribution per world family: "rad" (the original's RAD sampler) or
 #: "curriculum" (the family's DeepLTL curriculum as DFAs, `ltl2action.CURRICULA`)
 SAMPLERS = {"letter": "curriculum", "zone": "curriculum", "arm": "rad"}
+#: the shipped encoder a world family starts from: the grippers-only arm's alphabet is ZoneEnv's
+#: (the same 4 colours, one or none at a time), so it reads the Zone encoder
+SHIPPED_ENCODERS = {"letter": "letter", "zone": "zone", "arm": "zone"}
 
 
 class RADObs(NamedTuple):
@@ -226,12 +229,12 @@ def make_method(world: Any, params: Any, family: str = "letter", bank: DFABank |
     """RAD on any single-agent world: the training tasks are `bank` (drawn uniformly) if given,
     else by `sampler` (default `SAMPLERS[family]`) a bank of `bank_size` RAD conjunctions ("rad")
     or `family`'s curriculum as DFAs, `per_stage` draws of a sampled stage ("curriculum"),
-    embedded by the frozen encoder `encoder` (default: the shipped one of `family`; or
+    embedded by the frozen encoder `encoder` (default: `SHIPPED_ENCODERS[family]`; or
     `encoder_params` of `encoder_layers` rounds). The embeddings of the bank's reachable states
     are encoded once into a table, or every step where it would exceed `max_table_rows` rows
     (`bank_embedder`)."""
     alphabet = np.asarray(world.alphabet, bool)
-    encoder = family if encoder is None else encoder
+    encoder = SHIPPED_ENCODERS[family] if encoder is None else encoder
     shared = bank is None and encoder_params is None
     sampler = check_sampler(family, sampler)
     cache_key = (alphabet.tobytes(), alphabet.shape, bank_size, seed, encoder, encoder_layers,

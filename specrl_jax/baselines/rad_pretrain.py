@@ -231,5 +231,6 @@ def load_encoder(family_or_path: str | Path, num_symbols: int) -> Any:
         raise ValueError(f"{path} holds no RAD encoder parameters") from None
     if width != num_features(num_symbols):
         raise ValueError(f"the encoder at {path} reads {width - NUM_FLAGS} symbols; the "
-                         f"alphabet has {num_symbols}")
+                         f"alphabet has {num_symbols}; RAD needs an encoder pretrained on this "
+                         "alphabet (`encoder=PATH`)")
     return jax.tree.map(jnp.asarray, stored)

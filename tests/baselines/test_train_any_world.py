@@ -10,7 +10,7 @@ import pytest
 
 import specrl_jax
 from specrl_jax import automata
-from specrl_jax.baselines import deepltl, experiment, genz
+from specrl_jax.baselines import deepltl, experiment, gcrl, genz, ltl2action, rad
 from specrl_jax.baselines.ppo import make_train
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.eval.evaluate import run_episode
@@ -55,6 +55,36 @@ def test_one_update_on_each_robot(env_id, module):
     runner, metrics = jax.jit(trainer.update)(runner)
     assert int(runner.update) == 1
     assert all(np.isfinite(np.asarray(v)).all() for v in metrics.values())
+
+
+# the other three methods meet each kind of world once, traced only (their Letter updates run in
+# their own tests); small formula / task banks keep the host-side builds to seconds
+@pytest.mark.parametrize("env_id, module, options", [
+    ("CarLTL0-v0", ltl2action, {"num_formulas": 8}),
+    ("PandaLTLReach1Joints-v0", ltl2action, {"num_formulas": 8}),
+    ("PointLTL0-v0", gcrl, {}),
+    ("PandaLTLReach0Joints-v0", gcrl, {}),
+    ("PandaLTLReach0Joints-v0", rad, {"bank_size": 16}),
+], ids=["car-ltl2action", "arm1-ltl2action", "point-gcrl", "arm0-gcrl", "arm0-rad"])
+def test_the_other_methods_trace_an_update_on_the_mjx_worlds(env_id, module, options):
+    world, params = specrl_jax.make(env_id, **({"table_contacts": False} if "Panda" in env_id else {}))
+    family = experiment.family(env_id)
+    method = module.make_method(world, params, family, **options)
+    cfg = module.ppo_config(family, num_envs=2, num_steps=4, num_minibatches=1, update_epochs=1,
+                            total_timesteps=8)
+    trainer = make_train(cfg, method)
+    runner = jax.eval_shape(trainer.init, jax.random.key(0))
+    metrics = jax.eval_shape(trainer.update, runner)[1]
+    assert metrics["policy_loss"].shape == () and metrics["value_loss"].shape == ()
+
+
+def test_rad_on_the_grippers_arm_alphabet_names_the_missing_encoder():
+    """The grippers-only arm reads the shipped Zone encoder (same alphabet); grippers+arm's 256
+    assignments have none, and the error says so instead of failing inside the network."""
+    world, params = specrl_jax.make("PandaLTLReach1Joints-v0", table_contacts=False)
+    with pytest.raises(ValueError, match="reads 5 symbols; the alphabet has 256; RAD needs an "
+                                         "encoder pretrained on this alphabet"):
+        rad.make_method(world, params, "arm", bank_size=16)
 
 
 def test_training_and_evaluation_agree_on_an_episode():
