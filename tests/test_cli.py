@@ -26,6 +26,25 @@ def test_eval_end_to_end(tmp_path, capsys):
         assert (tmp_path / plot).stat().st_size > 5_000
 
 
+def test_train_gcrl_end_to_end(tmp_path):
+    """`specrl-jax train` on a method with a phase after PPO (GCRL-LTL's value function from the
+    policy's trajectories) writes both networks and evaluates every Letter suite with them."""
+    from flax import serialization
+
+    code = cli.main(["train", "--method", "gcrl", "--env", "LetterLTL0-v0", "--total-steps", "512",
+                     "--num-envs", "8", "--num-steps", "16", "--map-bank", "64",
+                     "--eval-episodes", "1", "--out", str(tmp_path)])
+    assert code == 0
+    stored = serialization.msgpack_restore((tmp_path / "params.msgpack").read_bytes())
+    assert set(stored) == {"policy", "gcvf"}
+    results = json.loads((tmp_path / "eval.json").read_text())["results"]
+    assert [r["suite"] for r in results] == ["letter/finite/ind", "letter/finite/ood",
+                                             "letter/infinite/rsp", "letter/infinite/rec"]
+    assert all(r["method"] == "GCRL-LTL" and r["seeds"] == [1] for r in results)
+    summary = json.loads((tmp_path / "train_summary.json").read_text())
+    assert summary["env_steps_per_seed"] == 512
+
+
 def test_listings(capsys):
     assert cli.main(["envs"]) == 0
     assert "LetterLTL0-v0" in capsys.readouterr().out
