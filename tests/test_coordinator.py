@@ -16,9 +16,12 @@ from flax import struct
 
 import specrl_jax
 from specrl_jax import automata
+from specrl_jax.baselines import gcrl
+from specrl_jax.baselines.ppo.networks import DiagGaussian, PolicyOutput
 from specrl_jax.eval.evaluate import evaluate, record_episodes
 from specrl_jax.tasks import TaskEnv
 from specrl_jax.tasks.coordinator import (
+    AgentSubgoal,
     SystemWorld,
     agent_codes,
     check_spec_agents,
@@ -325,3 +328,54 @@ def test_the_coordinator_traces_through_the_task_loop_on_the_mjx_world(world):
     assert seen[0] == {"ap": (4, 16), "ego": (16,)}  # one agent's single-agent observation
     assert (action.shape, action.dtype) == ((2, 2), jnp.float32)
     assert terminated.shape == truncated.shape == aborted.shape == ()
+
+
+class _GoalNet:
+    """A hand-made GCRL network for the dot world (per agent: `ap` offsets, then `ego`): for
+    goal g the mean action a quarter of the offset to zone g, the value `1 - 0.1 * distance`."""
+
+    continuous = True
+    primitive_sensors = 0
+
+    def apply(self, params, obs):
+        offsets = obs.parts["vector"][..., :8].reshape(*obs.goal_index.shape, 4, 2)
+        to_goal = jnp.take_along_axis(offsets, obs.goal_index[..., None, None], axis=-2)[..., 0, :]
+        value = 1.0 - 0.1 * jnp.linalg.norm(to_goal, axis=-1)
+        pi = DiagGaussian(0.25 * to_goal, jnp.full_like(to_goal, 0.1))
+        return PolicyOutput(pi, value, value, value)
+
+
+def test_gcrl_agent_pursues_the_coordinators_goal_and_turns_from_its_avoid_set():
+    """`gcrl.coordinator_agent` under the coordinator on `(!yellow_0 U blue_0) & (!green_1 U
+    magenta_1)`: each agent's action is its own reach colour's mean, except where its avoided
+    colour's value is above 0.85 and the goal's (the goal's mean minus the danger's)."""
+    dots = _DotWorld()
+    formula = "(!yellow_0 U blue_0) & (!green_1 U magenta_1)"
+    task = TaskEnv(SystemWorld(dots), compile_system_specs([formula], dots))
+    _, state = task.reset(jax.random.key(0), dots.default_params)
+    agent = gcrl.coordinator_agent(_GoalNet(), {"ap": "vector", "ego": "vector"})
+    policy = make_coordinator(agent, dots)
+    net = {"policy": None, "gcvf": None}
+
+    @jax.jit
+    def act(xy):
+        obs = dots._obs(xy)
+        carry = policy.init(net, obs, state, jax.random.key(1))
+        return policy.apply(net, obs, state, carry, jax.random.key(2))[0][0]
+
+    # zones: blue (2, 0), green (0, 2), magenta (-2, 0), yellow (0, -2)
+    cases = [
+        # 0 by yellow (0.94 > 0.85 and > blue's 0.77): blue's mean minus yellow's;
+        # 1 by magenta, its goal (0.93) above green (0.79): magenta's mean
+        ([[0.3, -1.5], [-1.5, 0.5]], [[0.5, 0.5], [-0.125, -0.125]]),
+        # 0: yellow closer than blue (0.847 vs 0.840) but under 0.85: blue's mean;
+        # 1 by green (0.86, magenta 0.79): magenta's mean minus green's
+        ([[0.5, -0.55], [0.0, 0.6]], [[0.375, 0.1375], [-0.5, -0.5]]),
+    ]
+    for xy, want in cases:
+        np.testing.assert_allclose(act(jnp.asarray(xy)), want, atol=1e-6, err_msg=str(xy))
+    # the coordinator hands one colour per agent; given several, the first is the goal (green)
+    two = AgentSubgoal(jnp.array([False, True, True, False]), jnp.zeros(4, bool),
+                       jnp.zeros(5, bool), jnp.zeros(5, bool), jnp.bool_(True))
+    obs = {k: v[0] for k, v in dots._obs(jnp.zeros((2, 2))).items() if k != "others"}
+    np.testing.assert_allclose(agent(net, obs, two, jax.random.key(0)), [0.0, 0.5])

@@ -9,9 +9,10 @@ import specrl_jax
 from specrl_jax import automata
 from specrl_jax.baselines import gcrl
 from tiny_learning import early_late, train_rows
-from specrl_jax.baselines.ppo.networks import Categorical, PolicyOutput
+from specrl_jax.baselines.ppo.networks import Categorical, DiagGaussian, PolicyOutput
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.eval import evaluate
+from specrl_jax.eval.evaluate import record_episodes
 from specrl_jax.tasks import TaskEnv
 
 
@@ -123,3 +124,74 @@ def test_agent_pursues_b_and_turns_away_from_a_above_the_threshold():
     assert int(act(jnp.array([0.9, 0.7]))[0][0]) == 1
     assert int(act(jnp.array([0.8, 0.7]))[0][0]) == 2  # closer than the goal but under 0.85
     assert int(act(jnp.array([0.9, 0.95]))[0][0]) == 2  # above 0.85 but the goal is closer
+
+
+class _LetterOracle:
+    """A hand-made GCRL network on a full-view LetterWorld: for goal g, a large logit on the
+    move toward letter g (rows first) and the value `1 - 0.1 * distance` to it."""
+
+    continuous = False
+    primitive_sensors = 0
+
+    def apply(self, params, obs):
+        grid = obs.parts["grid"]  # [..., V, V, L + 1]: letter channels, then the agent
+        v = grid.shape[-2]
+        channel = jnp.take_along_axis(grid, obs.goal_index[..., None, None, None], axis=-1)
+        cell = jnp.argmax(channel.reshape(*channel.shape[:-3], -1), axis=-1)
+        di, dj = cell // v - v // 2, cell % v - v // 2
+        move = jnp.where(di < 0, 0, jnp.where(di > 0, 1, jnp.where(dj < 0, 2, 3)))
+        value = 1.0 - 0.1 * (jnp.abs(di) + jnp.abs(dj))
+        zeros = jnp.zeros_like(value)
+        return PolicyOutput(Categorical(5.0 * jax.nn.one_hot(move, 4)), value, zeros, zeros)
+
+
+def test_agent_visits_acceptance_on_infinite_specs_and_takes_the_persistence_jump():
+    """The test-time agent with an oracle network on the tiny world: `GF a & GF b` alternates
+    the letters (accepting visits, no violation); on `F G !a` the plan's epsilon jump is taken
+    and 'a' kept away from afterwards (with no goal the agent follows the policy of proposition
+    0, here 'a' itself, so the 0.85 rule is what turns it away, one cell before the letter)."""
+    world, params = _tiny_world()
+    params = params.replace(max_steps=30)
+    policy = gcrl.make_policy(_LetterOracle(), world.alphabet, world.obs_kinds,
+                              value_network=_PairStub())
+    net = {"policy": None, "gcvf": None}
+    formulas = ["GF a & GF b", "F G !a"]
+    table = evaluate(policy, (world, params), formulas, seeds=[0], episodes_per_seed=8,
+                     policy_params=net).table
+    visits, violation = np.asarray(table.num_accepting)[0], np.asarray(table.violation)[0]
+    assert not violation.any(), violation
+    # on a 5x5 torus each letter is at most 4 moves from the other: an a-b round trip per 8 steps
+    assert (visits[0] >= 30 // 8).all(), visits[0]
+    assert (visits[1] > 0).all(), visits[1]
+
+    spec = automata.compile_spec("F G !a", world.propositions, alphabet=world.alphabet)
+    assert bool(automata.has_epsilon(spec, spec.init))
+    jumped = int(spec.epsilon[spec.init, 0])
+    task = TaskEnv(world, automata.stack([spec]))
+    states, alive = record_episodes(policy, task, params, jax.random.split(jax.random.key(3), 8),
+                                    jnp.zeros(8, jnp.int32), policy_params=net)
+    q = np.asarray(states.q)
+    assert (q[:, -1] == jumped).all() and (q[:, 0] != jumped).all(), q
+
+
+def test_gaussian_head_safety_rule_turns_from_the_worst_avoided_proposition_above_085():
+    """The arm's rule: when the most dangerous avoided proposition's value exceeds 0.85 and the
+    goal's (the original's condition), the goal's mean action minus that proposition's,
+    clipped to the box; otherwise the goal's mean. No goal: away from the danger alone."""
+    network = gcrl.GCRLNetwork(2, continuous=True)
+    means = jnp.array([[0.6, 0.2], [0.5, -0.4], [-0.3, 0.9], [0.0, 0.0]])
+    avoid = jnp.array([True, False, True, False])
+    goal = jnp.int32(1)
+    rule = jax.jit(lambda values, goal: gcrl.safe_action(
+        network, PolicyOutput(DiagGaussian(means, jnp.full((4, 2), 0.1)), values, values, values),
+        goal, avoid, gcrl.VALUE_THRESHOLD, True, jax.random.key(0)))
+    cases = [
+        ([0.9, 0.7, 0.1, 0.99], goal, [-0.1, -0.6]),  # away from 0; 3 is not avoided
+        ([0.9, 0.7, 0.95, 0.1], goal, [0.8, -1.0]),  # the worst is 2; clipped at -1
+        ([0.84, 0.7, 0.1, 0.1], goal, [0.5, -0.4]),  # closer than the goal but under 0.85
+        ([0.9, 0.95, 0.1, 0.1], goal, [0.5, -0.4]),  # above 0.85 but the goal is closer
+        ([0.9, 0.2, 0.1, 0.1], jnp.int32(-1), [-0.6, -0.2]),  # no goal: away only
+    ]
+    for values, g, want in cases:
+        np.testing.assert_allclose(rule(jnp.asarray(values), g), want, atol=1e-6,
+                                   err_msg=str(values))
