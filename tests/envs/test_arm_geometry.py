@@ -87,31 +87,36 @@ def _model_with_ball(radius):
     return spec.compile()
 
 
-def test_link_sphere_distances_match_mujoco_c_geom_distance():
+def test_link_sphere_distances_match_mujoco_c_geom_distance(env):
+    """The env's own distance path (`link_sphere_distances` over `env._triangles`, the per-link
+    hulls as one HullSet, all 10 links at once as `_observe` calls it) against MuJoCo C."""
+    assert isinstance(env._triangles, tuple) and len(env._triangles) == 10  # the HullSet branch
     model = _model_with_ball(0.06)
     data = mujoco.MjData(model)
-    tris = jnp.asarray(arm_model.link_triangles()[0])
-    distances = jax.jit(sensors.link_sphere_distances)
+    ids = arm_model.body_ids(model)
+    distances = jax.jit(lambda pos, mat, centres: sensors.link_sphere_distances(
+        pos, mat, env._triangles, centres, jnp.array([0.06])))
     rng = np.random.default_rng(1)
     signs = []
     for trial in range(30):
         data.qpos[:] = arm_model.NEUTRAL_QPOS + rng.uniform(-0.6, 0.6, 7)
         mujoco.mj_kinematics(model, data)
         link = trial % 10
-        body = model.body(arm_model.LINK_BODIES[link]).id
-        centre = data.xpos[body] + rng.normal(0.0, 0.07, 3)
+        centre = data.xpos[ids[link]] + rng.normal(0.0, 0.07, 3)
         data.mocap_pos[0] = centre
         mujoco.mj_kinematics(model, data)
-        fromto = np.zeros(6)
-        ref = mujoco.mj_geomDistance(model, data, model.geom(arm_model.LINK_BODIES[link]).id,
-                                     model.geom("ball").id, 10.0, fromto)
-        dist, normal = distances(data.xpos[body][None], data.xmat[body].reshape(1, 3, 3),
-                                 tris[link:link + 1], centre[None], jnp.array([0.06]))
-        assert abs(float(dist[0, 0]) - ref) < 1e-3, (trial, float(dist[0, 0]), ref)
-        if ref > 1e-3:  # the direction from the link's point toward the sphere's
-            expected = (fromto[3:] - fromto[:3]) / np.linalg.norm(fromto[3:] - fromto[:3])
-            assert np.abs(np.asarray(normal[0, 0]) - expected).max() < 1e-3
-        signs.append(ref < 0)
+        dist, normal = distances(data.xpos[ids], data.xmat[ids].reshape(-1, 3, 3), centre[None])
+        for other in range(10):  # every link, the probed one near the sphere
+            fromto = np.zeros(6)
+            ref = mujoco.mj_geomDistance(model, data, model.geom(arm_model.LINK_BODIES[other]).id,
+                                         model.geom("ball").id, 10.0, fromto)
+            ours = float(dist[other, 0])
+            assert abs(ours - ref) < 1e-3, (trial, other, ours, ref)
+            if ref > 1e-3:  # the direction from the link's point toward the sphere's
+                expected = (fromto[3:] - fromto[:3]) / np.linalg.norm(fromto[3:] - fromto[:3])
+                assert np.abs(np.asarray(normal[other, 0]) - expected).max() < 1e-3
+            if other == link:
+                signs.append(ref < 0)
     assert 0 < sum(signs) < len(signs)  # both penetrating and separated cases were checked
 
 
@@ -136,10 +141,15 @@ def test_keepout_test_matches_mujoco_c_on_the_neutral_robot():
     assert 0.2 < ours.mean() < 0.9  # the test saw both sides
 
 
-def test_mode1_features_and_labels_match_a_numpy_reference(env):
+@pytest.mark.parametrize("partial", [False, True])
+def test_mode1_features_and_labels_match_a_numpy_reference(env, partial):
     """Hand-built layouts: a region at the fingertips (both fingers, also the hand), one at the
     elbow (arm only), one just below the fingertips (grippers only, as measured in the
-    original), the rest far; features checked against the B4/B5 formulas from the env's poses."""
+    original), one beside either finger (that finger only: no label), the rest far; features
+    checked against the B4/B5 formulas (`exp(-2 d)`, or the `.partial` IDs' linear 0.25 m
+    feature with dir zeroed beyond it) from the env's poses."""
+    if partial:
+        env = ArmEnv(ArmConfig(mode=1, partial=True))
     state = _state(env, arm_model.NEUTRAL_QPOS)
     pose = jax.jit(env.poses)(state)
     tip = np.asarray(pose["link_pos"][8]) + np.array([0, 0, -0.054])
@@ -148,8 +158,11 @@ def test_mode1_features_and_labels_match_a_numpy_reference(env):
         "both": (tip + [0, 0, 0.02], {"arm_magenta", "grippers_magenta"}),
         "below": (tip + [0, 0, -0.058], {"grippers_magenta"}),
         "elbow": (elbow, {"arm_magenta"}),
+        "left finger": (tip + [0, -0.06, -0.025], set()),
+        "right finger": (tip + [0, 0.06, -0.025], set()),
     }
     observe = jax.jit(env._observe)
+    zeroed = 0
     for name, (centre, expected) in cases.items():
         centres = np.array([[0.0, 0.0, 3.0 + i] for i in range(8)])
         centres[0] = centre  # a magenta region
@@ -161,6 +174,8 @@ def test_mode1_features_and_labels_match_a_numpy_reference(env):
             pose["link_pos"], pose["link_mat"], env._triangles, jnp.asarray(centres),
             jnp.full(8, 0.06))
         dist, normal = np.asarray(dist), np.asarray(normal)
+        if name.endswith("finger"):  # exactly one finger inside the region, by millimetres
+            assert sorted(dist[8:, 0] < -0.003) == [False, True] and (dist[8:, 0] > 0.003).any()
         for p, prop in enumerate(env.propositions):
             part, color = prop.split("_")
             regions = [z for z in range(8) if env.config.colors[env.region_color[z]] == color]
@@ -169,10 +184,14 @@ def test_mode1_features_and_labels_match_a_numpy_reference(env):
                 z = min(regions, key=lambda z: dist[link, z])
                 d = dist[link, z]
                 direction = normal[link, z] * (-1 if d < 0 else 1)
-                ref = np.r_[direction, np.exp(-2 * d)]
-                assert np.abs(np.asarray(obs["ap"][p, row]) - ref).max() < 1e-4
+                f = max(0.0, 0.25 - d) / 0.25 if partial else np.exp(-2 * d)
+                if partial and f == 0:
+                    direction, zeroed = np.zeros(3), zeroed + 1
+                ref = np.r_[direction, f]
+                assert np.abs(np.asarray(obs["ap"][p, row]) - ref).max() < 1e-4, (name, prop, row)
             if part == "grippers":
                 assert np.all(np.asarray(obs["ap"][p, 2:]) == 0)
+    assert zeroed > 0 or not partial  # the far regions exercised the zeroed direction
 
 
 def test_mode0_features_and_labels_match_a_numpy_reference():

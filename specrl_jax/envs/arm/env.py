@@ -71,6 +71,7 @@ class ArmEnv(Env):
     def __init__(self, config: ArmConfig):
         if not isinstance(config, ArmConfig):
             raise TypeError(f"config must be an ArmConfig, got {type(config).__name__}")
+        layout_lib.check_feasible(config)  # raises if the keep-out leaves no layouts
         self.config = config
         self.propositions = config.propositions
         self.mj_model = arm_model.load_model(config.table_contacts)
