@@ -421,11 +421,12 @@ def safe_action(network: nn.Module, out: PolicyOutput, goal: jax.Array, avoid: j
     it (the original's: the two clipped mean actions summed, times `temperature`, clipped);
     on a grid, that goal move alone; with a continuous head, the goal's
     mean action minus the danger's. Otherwise the goal's mode (`deterministic`) or a sample.
-    `goal` int32[] (-1: none; then only the turn away, when there is a danger). `primitives`,
+    `goal` int32[] (-1: none; then the agent pursues the first proposition it need not avoid, and
+    turns away from the danger alone). `primitives`,
     `sensors`: the primitives' parameters and the robot sensors, for a primitive network;
     `temperature` scales their actions (the original's 1.5 at test time).
     """
-    index = jnp.maximum(goal, 0)
+    index = jnp.where(goal >= 0, goal, jnp.argmax(~avoid))
     danger = jnp.where(avoid, out.value, -jnp.inf)
     worst = jnp.argmax(danger)
     has_goal = goal >= 0
@@ -499,8 +500,9 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
     avoided p has `V(s, p) > value_threshold` and above the goal's value, the action turns away
     from the most dangerous one (discrete: the goal's best action other than the one most likely
     toward it; continuous: the goal's mean action minus the danger's, clipped); otherwise the
-    goal's mode (`deterministic`, the original's) or a sample. With no goal needed the agent
-    moves away from the most dangerous avoided proposition. `temperature` scales the direction
+    goal's mode (`deterministic`, the original's) or a sample. With no goal needed (a persistence
+    task's accepting cycle) the agent pursues the first proposition it need not avoid, so that it
+    keeps moving without nearing a danger, and turns away from any danger above the threshold. `temperature` scales the direction
     primitives' actions of a robot world (the original's 1.5).
     """
     alphabet_np = np.asarray(alphabet, bool)
