@@ -53,26 +53,6 @@ def closest_on_triangles(p: jax.Array, tri: jax.Array) -> jax.Array:
     return point
 
 
-def signed_distance(p: jax.Array, tri: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """Signed distance from `p: float[3]` to the hull `tri: float[T, 3, 3]` (negative inside)
-    and the unit normal `float[3]` pointing from the hull toward `p` (inside: the nearest face's
-    outward normal)."""
-    closest = closest_on_triangles(p, tri)
-    gap = p - closest
-    dist_sq = jnp.sum(gap * gap, axis=-1)
-    k = jnp.argmin(dist_sq)
-    outside_dist = jnp.sqrt(dist_sq[k])
-    normal = jnp.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    normal = normal / jnp.linalg.norm(normal, axis=-1, keepdims=True)
-    height = jnp.sum(normal * (p - tri[:, 0]), axis=-1)
-    j = jnp.argmax(height)
-    inside = height[j] <= 0
-    out_normal = gap[k] / jnp.where(outside_dist > 0, outside_dist, 1.0)
-    dist = jnp.where(inside, height[j], outside_dist)
-    direction = jnp.where(inside | (outside_dist == 0), normal[j], out_normal)
-    return dist, direction
-
-
 class HullSet(NamedTuple):
     """Hulls of different triangle counts, flattened (static numpy arrays).
 
@@ -104,13 +84,14 @@ def hull_set(hulls: Sequence[np.ndarray]) -> HullSet:
 
 
 def signed_distances(points: jax.Array, hulls: HullSet) -> tuple[jax.Array, jax.Array]:
-    """`signed_distance` of each hull of `hulls` to its own point.
+    """Signed distance from each hull of `hulls` to its own point (negative inside), and the unit
+    direction from the hull toward the point (inside: the nearest face's outward normal).
 
     Args:
         points: float[H, 3], one point per hull, in that hull's frame.
         hulls: the H hulls.
 
-    Returns `(dist float[H], direction float[H, 3])`, as `signed_distance` gives them.
+    Returns `(dist float[H], direction float[H, 3])`.
     """
     tri, normals = jnp.asarray(hulls.triangles), jnp.asarray(hulls.normals)
     p = points[hulls.owner]  # [T, 3]: each triangle's point
@@ -128,13 +109,6 @@ def signed_distances(points: jax.Array, hulls: HullSet) -> tuple[jax.Array, jax.
     return dist, direction
 
 
-def min_distance(p: jax.Array, tri: jax.Array) -> jax.Array:
-    """Unsigned distance from `p: float[3]` to the triangles `tri: float[T, 3, 3]`."""
-    gap = p - closest_on_triangles(p, tri)
-    return jnp.sqrt(jnp.min(jnp.sum(gap * gap, axis=-1)))
-
-
 __all__ = [
-    "HullSet", "closest_on_triangles", "hull_set", "min_distance", "signed_distance",
-    "signed_distances",
+    "HullSet", "closest_on_triangles", "hull_set", "signed_distances",
 ]

@@ -75,29 +75,12 @@ def link_hulls() -> tuple[np.ndarray, ...]:
     )
 
 
-@functools.cache
-def link_triangles() -> tuple[np.ndarray, np.ndarray]:
-    """The observed links' hull triangles in their body frames, padded to one count.
-
-    Returns:
-        `triangles: float32[L, T, 3, 3]` (metres, L = 10 links in the original's order; padding
-        repeats a real triangle, which changes no minimum) and `counts: int32[L]`.
-    """
-    tris = []
-    for name, angle in LINK_HULLS:
-        vertices, faces = read_hull(name)
-        tris.append(_yaw(vertices, angle)[faces])
-    most = max(t.shape[0] for t in tris)
-    padded = [np.concatenate([t, np.repeat(t[:1], most - t.shape[0], 0)]) for t in tris]
-    return np.asarray(padded, np.float32), np.asarray([t.shape[0] for t in tris], np.int32)
-
-
 def body_ids(model: mujoco.MjModel, names: tuple[str, ...] = LINK_BODIES) -> np.ndarray:
     return np.asarray([model.body(n).id for n in names], np.int32)
 
 
 __all__ = [
-    "FORCE_LIMITS", "LINK_BODIES", "NEUTRAL_QPOS", "NUM_ARM_LINKS", "link_hulls", "link_triangles",
+    "FORCE_LIMITS", "LINK_BODIES", "NEUTRAL_QPOS", "NUM_ARM_LINKS", "link_hulls",
     "load_model",
     "read_hull",
 ]

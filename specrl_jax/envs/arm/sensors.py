@@ -49,22 +49,19 @@ def point_features(point: jax.Array, centres: jax.Array, radius: jax.Array,
 
 
 def link_sphere_distances(link_pos: jax.Array, link_mat: jax.Array,
-                          triangles: jax.Array | Sequence[np.ndarray], centres: jax.Array,
+                          triangles: Sequence[np.ndarray], centres: jax.Array,
                           radius: jax.Array) -> tuple[jax.Array, jax.Array]:
     """Signed link-to-sphere distances `float[L, Z]` (m, negative = penetration) and the unit
     direction `float[L, Z, 3]` from the link's nearest point toward the sphere's centre.
 
     Args:
         link_pos: float[L, 3], link_mat: float[L, 3, 3] link frames (world <- link).
-        triangles: each link's hull in its frame, float[L, T, 3, 3], or a sequence of L static
-            float[T_l, 3, 3] (each link its own triangle count: no work on padding).
+        triangles: each link's hull in its frame, a sequence of L static float[T_l, 3, 3] (each
+            link its own triangle count: no work on padding).
         centres: float[Z, 3]; radius: float[Z].
     """
-    if isinstance(triangles, (list, tuple)):
-        hulls = geometry.hull_set(triangles)
-        measure = lambda local: geometry.signed_distances(local, hulls)
-    else:
-        measure = lambda local: jax.vmap(geometry.signed_distance)(local, triangles)
+    hulls = geometry.hull_set(triangles)
+    measure = lambda local: geometry.signed_distances(local, hulls)
 
     def one_region(centre):
         local = jnp.einsum("lj,lji->li", centre - link_pos, link_mat)  # [L, 3], link frames
