@@ -177,7 +177,8 @@ def test_agent_visits_acceptance_on_infinite_specs_and_takes_the_persistence_jum
 def test_gaussian_head_safety_rule_turns_from_the_worst_avoided_proposition_above_085():
     """The arm's rule: when the most dangerous avoided proposition's value exceeds 0.85 and the
     goal's (the original's condition), the goal's mean action minus that proposition's,
-    clipped to the box; otherwise the goal's mean. No goal: away from the danger alone."""
+    clipped to the box; otherwise the goal's mean. No goal: away from the danger alone, and
+    with no danger the first proposition not avoided is pursued."""
     network = gcrl.GCRLNetwork(2, continuous=True)
     means = jnp.array([[0.6, 0.2], [0.5, -0.4], [-0.3, 0.9], [0.0, 0.0]])
     avoid = jnp.array([True, False, True, False])
@@ -191,6 +192,8 @@ def test_gaussian_head_safety_rule_turns_from_the_worst_avoided_proposition_abov
         ([0.84, 0.7, 0.1, 0.1], goal, [0.5, -0.4]),  # closer than the goal but under 0.85
         ([0.9, 0.95, 0.1, 0.1], goal, [0.5, -0.4]),  # above 0.85 but the goal is closer
         ([0.9, 0.2, 0.1, 0.1], jnp.int32(-1), [-0.6, -0.2]),  # no goal: away only
+        # no goal and no danger: toward the first proposition not avoided (1), never toward 0
+        ([0.5, 0.2, 0.1, 0.1], jnp.int32(-1), [0.5, -0.4]),
     ]
     for values, g, want in cases:
         np.testing.assert_allclose(rule(jnp.asarray(values), g), want, atol=1e-6,
