@@ -234,7 +234,7 @@ def make_method(world: Any, params: Any, family: str = "letter", bank: DFABank |
     are encoded once into a table, or every step where it would exceed `max_table_rows` rows
     (`bank_embedder`)."""
     alphabet = np.asarray(world.alphabet, bool)
-    encoder = SHIPPED_ENCODERS[family] if encoder is None else encoder
+    encoder = SHIPPED_ENCODERS.get(family, family) if encoder is None else encoder
     shared = bank is None and encoder_params is None
     sampler = check_sampler(family, sampler)
     cache_key = (alphabet.tobytes(), alphabet.shape, bank_size, seed, encoder, encoder_layers,
