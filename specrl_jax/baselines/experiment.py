@@ -104,7 +104,7 @@ def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int
     if map_bank and world_family == "letter":
         # wait for the bank here: dispatched asynchronously, it would finish inside training
         params = jax.block_until_ready(world.with_map_bank(key, params, num_maps=map_bank))
-    method_obj = make_method(method, world, params, world_family, method_options)
+    method_obj = module.make_method(world, params, world_family, **(method_options or {}))
     return world, params, method_obj, module.ppo_config(world_family, **ppo_overrides)
 
 

@@ -422,8 +422,7 @@ def safe_action(network: nn.Module, out: PolicyOutput, goal: jax.Array, avoid: j
     on a grid, that goal move alone; with a continuous head, the goal's
     mean action minus the danger's. Otherwise the goal's mode (`deterministic`) or a sample.
     `goal` int32[] (-1: none; then the agent pursues the first proposition it need not avoid, and
-    turns away from the danger alone). `primitives`,
-    `sensors`: the primitives' parameters and the robot sensors, for a primitive network;
+    turns away from the danger alone). `primitives`, `sensors`: the primitives' parameters and the robot sensors, for a primitive network;
     `temperature` scales their actions (the original's 1.5 at test time).
     """
     index = jnp.where(goal >= 0, goal, jnp.argmax(~avoid))
@@ -502,8 +501,8 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
     toward it; continuous: the goal's mean action minus the danger's, clipped); otherwise the
     goal's mode (`deterministic`, the original's) or a sample. With no goal needed (a persistence
     task's accepting cycle) the agent pursues the first proposition it need not avoid, so that it
-    keeps moving without nearing a danger, and turns away from any danger above the threshold. `temperature` scales the direction
-    primitives' actions of a robot world (the original's 1.5).
+    keeps moving without nearing a danger, and turns away from any danger above the threshold.
+    `temperature` scales the direction primitives' actions of a robot world (the original's 1.5).
     """
     alphabet_np = np.asarray(alphabet, bool)
     num_props = alphabet_np.shape[1]

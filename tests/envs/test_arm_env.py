@@ -75,7 +75,7 @@ def test_keepout_feasibility_is_checked_at_build():
     ArmEnv(ArmConfig(colors=("magenta",), keepout=0.2))  # rarer centres, but only two regions
     exact = layout_lib.keepout_pass_fraction(0.06, 0.08)
     assert abs(exact - 0.543) < 0.07  # 3 standard errors of 512 points
-    assert 0.3 < layout_lib.keepout_pass_fraction(0.06, 0.08, exact=False) <= exact
+    assert 0.3 < layout_lib.grid_clear_fraction(0.06, 0.08) <= exact
 
 
 def _placement_reference(rng, config, n):

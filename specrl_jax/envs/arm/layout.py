@@ -256,25 +256,35 @@ def sample_centres(key: jax.Array, config: ArmConfig) -> tuple[jax.Array, jax.Ar
 FEASIBILITY_POINTS = 512
 
 
-@functools.lru_cache(maxsize=None)
-def keepout_pass_fraction(region_radius: float, keepout: float, exact: bool = True) -> float:
-    """The fraction (0..1) of `FEASIBILITY_POINTS` seeded uniform centres in the sampling box
-    that pass the robot keep-out: by the exact test (`keepout_margin`, a compile of about half
-    a second), or, with `exact=False`, a lower bound from the stored keep-out grid's CLEAR
-    cells (no compiling; 0 when no grid is stored)."""
+def _feasibility_points(region_radius: float, keepout: float) -> tuple[ArmConfig, np.ndarray]:
+    """A one-region config of that radius and keep-out, and `FEASIBILITY_POINTS` seeded uniform
+    centres float32[N, 3] in its sampling box."""
     config = ArmConfig(colors=("magenta",), regions_per_color=1, region_radius=region_radius,
                        keepout=keepout)
     low, high = (np.asarray(x, np.float32) for x in _box(config))
     points = np.random.default_rng(0).uniform(low, high, (FEASIBILITY_POINTS, 3))
-    points = points.astype(np.float32)
-    if exact:
-        margin = jax.jit(jax.vmap(lambda c: keepout_margin(c, config)))(jnp.asarray(points))
-        return float(np.mean(np.asarray(margin) > 0))
+    return config, points.astype(np.float32)
+
+
+@functools.lru_cache(maxsize=None)
+def keepout_pass_fraction(region_radius: float, keepout: float) -> float:
+    """The fraction (0..1) of the feasibility points that pass the exact robot keep-out test
+    (`keepout_margin`; a compile of about half a second)."""
+    config, points = _feasibility_points(region_radius, keepout)
+    margin = jax.jit(jax.vmap(lambda c: keepout_margin(c, config)))(jnp.asarray(points))
+    return float(np.mean(np.asarray(margin) > 0))
+
+
+@functools.lru_cache(maxsize=None)
+def grid_clear_fraction(region_radius: float, keepout: float) -> float:
+    """A lower bound of `keepout_pass_fraction` from the stored keep-out grid's CLEAR cells (no
+    compiling); 0 when no grid is stored."""
     if not _grid_path(region_radius, keepout).exists():
         return 0.0
+    _, points = _feasibility_points(region_radius, keepout)
     classes, grid_low, cell = keepout_grid(region_radius, keepout)
-    index = np.floor((points - grid_low) / cell).astype(int)
-    index = np.clip(index, 0, np.asarray(classes.shape) - 1)
+    index = np.clip(np.floor((points - grid_low) / cell).astype(int), 0,
+                    np.asarray(classes.shape) - 1)
     return float(np.mean(classes[tuple(index.T)] == CLEAR))
 
 
@@ -289,7 +299,7 @@ def check_feasible(config: ArmConfig) -> None:
     """
     z, capacity = config.num_regions, config.layouts_per_round * config.max_rounds
     r, k = config.region_radius, config.keepout
-    if keepout_pass_fraction(r, k, exact=False) ** z * capacity >= 1:
+    if grid_clear_fraction(r, k) ** z * capacity >= 1:
         return
     p = keepout_pass_fraction(r, k)
     if p**z * capacity >= 1:
@@ -315,7 +325,7 @@ def sample_bank(key: jax.Array, config: ArmConfig, num_layouts: int, chunk: int 
 
 
 __all__ = [
-    "BAD", "CLEAR", "UNSURE", "check_feasible", "grid_class", "keepout_grid", "keepout_margin",
-    "keepout_ok", "keepout_pass_fraction", "neutral_obstacles", "place_round", "sample_bank",
-    "sample_centres",
+    "BAD", "CLEAR", "UNSURE", "check_feasible", "grid_class", "grid_clear_fraction",
+    "keepout_grid", "keepout_margin", "keepout_ok", "keepout_pass_fraction", "neutral_obstacles",
+    "place_round", "sample_bank", "sample_centres",
 ]
