@@ -2,14 +2,20 @@
 task loop, its R-GCN starts (and, frozen, stays) the downstream network's encoder, the file
 round-trips, and `prepare_training` pretrains on the method's own formulas when asked."""
 
+import json
+from pathlib import Path
+
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
+import specrl_jax
 from specrl_jax.automata import zero_or_one
 from specrl_jax.baselines import ltl2action, ltl2action_pretrain
 from specrl_jax.baselines.ppo import make_train
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
+from specrl_jax.tasks.progression import num_features
 from tiny_learning import early_late, train_rows
 
 PROPS = ("a", "b", "c")
@@ -88,3 +94,20 @@ def test_prepare_training_pretrains_on_the_methods_own_formulas_when_asked(monke
     assert ltl2action.prepare_training(ready, jax.random.key(0), cfg) is ready
     with pytest.raises(ValueError, match="pretrain_steps must be >= 0"):
         ltl2action.make_method(world, params, formulas=FORMULAS, pretrain_steps=-1)
+
+
+@pytest.mark.parametrize("env_id", ["LetterLTL0-v0", "PointLTL0-v0"])
+def test_committed_encoders_fit_the_networks_of_their_worlds(env_id):
+    """The encoders in benchmarks/results (README, RESULTS) load for their world's propositions,
+    have the shapes of that world's R-GCN, and say which world they were pretrained on."""
+    results = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
+    stem = results / f"{env_id.split('-')[0].lower()}_ltl2action_bootcamp_encoder"
+    assert json.loads(stem.with_suffix(".json").read_text())["env"] == env_id
+    world, _ = specrl_jax.make(env_id)
+    num_props = len(world.propositions)
+    encoder = ltl2action_pretrain.load_encoder(stem.with_suffix(".msgpack"), num_props)
+    graph = jnp.zeros((1, 4), jnp.int32)
+    fresh = jax.eval_shape(ltl2action.RGCNEncoder(num_features(num_props)).init,
+                           jax.random.key(0), graph, graph - 1, graph)
+    assert jax.tree.map(np.shape, fresh) == jax.tree.map(np.shape, encoder)
+    assert all(np.isfinite(leaf).all() for leaf in jax.tree.leaves(encoder))
