@@ -9,8 +9,10 @@ import warnings
 import gymnasium
 import jax
 import jax.numpy as jnp
+import mujoco
 import numpy as np
 import pytest
+import scipy.stats
 from gymnasium.utils.env_checker import check_env
 
 import specrl_jax
@@ -78,51 +80,163 @@ def test_keepout_feasibility_is_checked_at_build():
     assert 0.3 < layout_lib.grid_clear_fraction(0.06, 0.08) <= exact
 
 
-def _placement_reference(rng, config, n):
-    """Plain-Python transcription of the original's sampler (sequential placement with per-region
-    retries, then whole-layout rejection by the robot keep-out)."""
-    low = np.array([-0.5, -0.3, config.region_radius])
-    high = np.array([0.2, 0.3, config.region_radius + 0.5])
-    keep = jax.jit(jax.vmap(lambda c: layout_lib.keepout_ok(c, config)))
-    out = []
-    while len(out) < n:
-        batch = []
-        for _ in range(64):
-            centres = []
-            for _ in range(config.num_regions):
-                for _ in range(config.max_tries):
-                    c = rng.uniform(low, high)
-                    if all(np.linalg.norm(c - o) >= config.keepout + 2 * config.region_radius
-                           for o in centres):
-                        centres.append(c)
-                        break
-                else:
+# The original's sampler, rebuilt from reference B3 alone (no specrl_jax.envs.arm.layout): the
+# box, the 100 tries per region, the separation, and the robot keep-out measured by MuJoCo C on
+# the arm's MJCF (used as data: link frames and hull files) at the neutral pose.
+NEUTRAL_JOINTS = (0.00, 0.41, 0.00, -1.85, 0.00, 2.26, 0.79)  # B2
+KEEPOUT_HULLS = ("link0", "link1", "link2", "link3", "link4", "link5", "link6", "link7", "hand",
+                 "leftfinger", "rightfinger")  # PyBullet links -1, 0..6, 8, 9, 10
+FRAME_ONLY = {"link8": (0.03844, 0.0, 0.3024), "grasptarget": (0.03844, 0.0, 0.1974)}  # 7, 11 (B6)
+
+
+class _ReferenceKeepout:
+    """B3's robot keep-out: a region fails if a keep-out hull comes within `keepout` of its sphere
+    (MuJoCo's `mj_geomDistance` to the whole hull), or if a frame-only link's origin comes within
+    `keepout + radius` (the original's 0.14 m) of its centre."""
+
+    def __init__(self, radius, keepout):
+        spec = mujoco.MjSpec.from_file(str(arm_model.MODEL_PATH))
+        for mesh in spec.meshes:
+            mesh.maxhullvert = -1  # whole hulls (the physics model caps them for table contacts)
+        spec.worldbody.add_geom(name="region", type=mujoco.mjtGeom.mjGEOM_SPHERE,
+                                size=[radius, 0, 0])
+        self.model, self.radius, self.keepout = spec.compile(), radius, keepout
+        self.data = mujoco.MjData(self.model)
+        self.data.qpos[:] = NEUTRAL_JOINTS
+        mujoco.mj_kinematics(self.model, self.data)
+        self.hulls = np.array([self.model.geom(name).id for name in KEEPOUT_HULLS])
+        self.sphere = self.model.geom("region").id
+        self.frames = np.array([self.data.xpos[self.model.body("link8").id],
+                                self.data.site_xpos[self.model.site("grasptarget").id]])
+        assert np.abs(self.frames - np.array(list(FRAME_ONLY.values()))).max() < 1e-4
+
+    def clear(self, centres, slack=0.0):
+        """bool[N]: which of `centres: float[N, 3]` pass (with `slack` metres of tolerance)."""
+        reach = self.keepout + self.radius - slack
+        clear = np.linalg.norm(centres[:, None] - self.frames, axis=-1).min(1) > reach
+        # a hull's bounding sphere farther than `reach` settles it without MuJoCo
+        near = (np.linalg.norm(centres[:, None] - self.data.geom_xpos[self.hulls], axis=-1)
+                - self.model.geom_rbound[self.hulls]) <= reach
+        for i in np.flatnonzero(clear):
+            self.data.geom_xpos[self.sphere] = centres[i]  # read as is by mj_geomDistance
+            clear[i] = all(
+                mujoco.mj_geomDistance(self.model, self.data, hull, self.sphere, 1.0, None)
+                > self.keepout - slack for hull in self.hulls[near[i]])
+        return clear
+
+
+def _reference_layouts(rng, n, config, keepout, batch=4096):
+    """`n` layouts float64[n, Z, 3] drawn as B3 says the original draws them.
+
+    Regions are placed one by one, each taking the first of up to `max_tries` uniform draws in the
+    box x [-0.5, 0.2], y [-0.3, 0.3], z [r, r + 0.5] whose centre is at least `keepout + 2 r`
+    from every region placed; a region with no such draw throws the layout away. A placed layout
+    is thrown away whole if any region fails the robot keep-out. `batch` layouts go side by side,
+    draw by draw; survivors are kept in order until there are `n`. `keepout` is the config's
+    `_ReferenceKeepout`.
+    """
+    r, z = config.region_radius, config.num_regions
+    low, high = np.array([-0.5, -0.3, r]), np.array([0.2, 0.3, r + 0.5])
+    separation = config.keepout + 2 * r
+    accepted = []
+    while sum(map(len, accepted)) < n:
+        centres = np.zeros((batch, z, 3))
+        placed = np.ones(batch, bool)
+        for region in range(z):
+            waiting = np.arange(batch)[placed]
+            for _ in range(config.max_tries):
+                draw = rng.uniform(low, high, (len(waiting), 3))
+                gaps = np.linalg.norm(draw[:, None] - centres[waiting, :region], axis=-1)
+                apart = (gaps >= separation).all(1)
+                centres[waiting[apart], region] = draw[apart]
+                waiting = waiting[~apart]
+                if not len(waiting):
                     break
-            if len(centres) == config.num_regions:
-                batch.append(centres)
-        ok = np.asarray(keep(np.asarray(batch).reshape(-1, 3))).reshape(len(batch), -1).all(1)
-        out += [b for b, good in zip(batch, ok) if good]
-    return np.asarray(out[:n])
+            placed[waiting] = False
+        for region in range(z):  # the whole layout is tested; region by region only saves work
+            alive = np.flatnonzero(placed)
+            placed[alive] = keepout.clear(centres[alive, region])
+        accepted.append(centres[placed])
+    return np.concatenate(accepted)[:n]
+
+
+def _layout_statistics(centres):
+    """One number per layout for each statistic of `centres: float[N, Z, 3]` (so the samples of a
+    statistic are independent): every region's x, y, z, the layout's mean x, |y| and z, its
+    closest pair, mean nearest-neighbour and mean pairwise centre distance."""
+    z = centres.shape[1]
+    gaps = np.linalg.norm(centres[:, :, None] - centres[:, None], axis=-1)
+    first, second = np.triu_indices(z, 1)
+    pairs = gaps[:, first, second]
+    nearest = np.where(np.eye(z, dtype=bool), np.inf, gaps).min(-1)
+    stats = {f"{'xyz'[axis]} of region {i}": centres[:, i, axis]
+             for i in range(z) for axis in range(3)}
+    stats.update({
+        "mean x": centres[..., 0].mean(1), "mean |y|": np.abs(centres[..., 1]).mean(1),
+        "mean z": centres[..., 2].mean(1), "closest pair": pairs.min(1),
+        "mean nearest neighbour": nearest.mean(1), "mean pair distance": pairs.mean(1),
+    })
+    return stats
+
+
+def _assert_same_distribution(ours, ref, alpha=1e-4):
+    """Two-sample KS on each `_layout_statistics`: D stays below the level-`alpha` bound of the
+    asymptotic Kolmogorov tail, P(D > c sqrt(1/n + 1/m)) ~ 2 exp(-2 c^2), so a correct sampler
+    fails by chance with probability at most `alpha` x (number of statistics)."""
+    bound = np.sqrt(np.log(2 / alpha) / 2 * (1 / len(ours) + 1 / len(ref)))
+    ours_stats, ref_stats = _layout_statistics(ours), _layout_statistics(ref)
+    distances = {name: scipy.stats.ks_2samp(ours_stats[name], ref_stats[name]).statistic
+                 for name in ours_stats}
+    worst = max(distances, key=distances.get)
+    assert distances[worst] < bound, (worst, distances[worst], bound)
+
+
+def _assert_valid(centres, config, keepout):
+    """Every layout of `centres: float[N, Z, 3]` lies in the box, keeps its regions apart and
+    passes the reference keep-out (within 1 mm: our hull distance is float32)."""
+    r = config.region_radius
+    assert (centres >= np.array([-0.5, -0.3, r]) - 1e-6).all()
+    assert (centres <= np.array([0.2, 0.3, r + 0.5]) + 1e-6).all()
+    gaps = np.linalg.norm(centres[:, :, None] - centres[:, None], axis=-1)
+    gaps += np.eye(centres.shape[1]) * 9
+    assert gaps.min() >= config.keepout + 2 * r - 1e-6, gaps.min()
+    inside = ~keepout.clear(centres.reshape(-1, 3), slack=1e-3)
+    assert not inside.any(), f"{inside.sum()} centres inside the robot keep-out"
 
 
 def test_layouts_are_valid_and_distributed_as_the_original_sampler(monkeypatch):
-    # two regions of the benchmark's size, so the reference accepts often enough for a CPU
-    # test; the sampler uses the stored keep-out grid with few exact checks per round, and one
-    # try per block with one continuation slot, so the rationing rules are exercised often
+    """Our sampler (jit + vmap) against the plain numpy reference above, on the benchmark's
+    config (8 regions), then on 2 regions with one try per block, one continuation slot and two
+    exact tests per round, so that the rationing rules of `place_round` and `sample_centres`
+    decide often (they bind in few rounds of the default config)."""
+    # 400 layouts of ours, 800 of the reference: KS bound 0.136. Without the robot keep-out the
+    # mean |y| moves by D ~ 0.65, with a separation of 0.18 or 0.22 m (not 0.2) the closest pair
+    # by D ~ 0.6; a correct sampler's largest D of the 30 statistics was 0.07-0.10 (6 seeds)
+    config = ArmConfig()
+    keepout = _ReferenceKeepout(config.region_radius, config.keepout)
+    box = np.random.default_rng(2).uniform([-0.5, -0.3, 0.06], [0.2, 0.3, 0.56], (4000, 3))
+    assert abs(keepout.clear(box).mean() - 0.543) < 0.03  # B3's measured share of the box
+    sample = jax.jit(jax.vmap(lambda k: layout_lib.sample_centres(k, config)))
+    ours, ok = sample(jax.random.split(jax.random.key(0), 400))
+    ours = np.asarray(ours, np.float64)
+    assert np.asarray(ok).all() and ours.shape == (400, 8, 3)
+    _assert_valid(ours, config, keepout)
+    ref = _reference_layouts(np.random.default_rng(0), 800, config, keepout)
+    _assert_same_distribution(ours, ref)
+
+    # 400 layouts of ours, 2000 of the reference: KS bound 0.122; largest D of a correct
+    # sampler 0.072
     monkeypatch.setattr(layout_lib, "TRY_BLOCK", 1)
     config = ArmConfig(colors=("magenta", "blue"), regions_per_color=1, layouts_per_round=8,
                        exact_checks_per_round=2, continuation_slots=1)
+    keepout = _ReferenceKeepout(config.region_radius, config.keepout)
     sample = jax.jit(jax.vmap(lambda k: layout_lib.sample_centres(k, config)))
-    ours, ok = sample(jax.random.split(jax.random.key(0), 400))
-    ours = np.asarray(ours)
+    ours, ok = sample(jax.random.split(jax.random.key(1), 400))
+    ours = np.asarray(ours, np.float64)
     assert np.asarray(ok).all()
-    assert np.asarray(jax.jit(jax.vmap(jax.vmap(lambda c: layout_lib.keepout_ok(c, config))))(ours)).all()
-    assert (np.linalg.norm(ours[:, 0] - ours[:, 1], axis=-1) >= 0.2 - 1e-6).all()
-    ref = _placement_reference(np.random.default_rng(0), config, 400)
-    for stat in (lambda x: x[..., 0], lambda x: x[..., 2], lambda x: np.abs(x[..., 1])):
-        a, b = stat(ours).ravel(), stat(ref).ravel()
-        stderr = np.sqrt(a.var() / a.size + b.var() / b.size)
-        assert abs(a.mean() - b.mean()) < 4 * stderr
+    _assert_valid(ours, config, keepout)
+    ref = _reference_layouts(np.random.default_rng(1), 2000, config, keepout)
+    _assert_same_distribution(ours, ref)
 
 
 def test_keepout_grid_is_conservative():
