@@ -1,0 +1,174 @@
+"""The arm's emulated position motor against PyBullet itself, the original's physics engine.
+
+Drives PyBullet's `franka_panda/panda.urdf` (from `pybullet_data`) with the original's joint
+control (reference B2: target `q + 0.05 a` re-anchored every step, POSITION_CONTROL with the
+forces 87, 87, 87, 87, 12, 120, 120 and the fingers at 0 with 170, 20 substeps of 1/500 s) and
+our MJX physics with the same action sequences from the neutral pose, then reports
+
+- per joint, the least-squares tracking gain and lag (dq_t on 0.05 a_t and 0.05 a_{t-1}) of both
+  engines on the same actions, and the open-loop joint difference after 1 ... T steps;
+- both engines' gains and lags under other sampling protocols (episodes x steps): the reference's
+  lag figures (0.21 and 0.12 on joints 1 and 2) depend on where the random walk takes the arm.
+
+PyBullet is an optional extra (`pip install -e ".[pybullet]"`; wheels for CPython up to 3.11).
+`--write-reference` stores PyBullet's rollouts in `tests/envs/data/` for the CPU test
+`tests/envs/test_arm_physics.py::test_motor_matches_pybullet_on_the_same_actions`, which then
+needs no PyBullet. Neither engine has the table or floor here: from the neutral pose 100 random
+steps reach neither.
+
+    python benchmarks/arm_vs_pybullet.py --write-reference \
+        --out benchmarks/results/arm_vs_pybullet.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from specrl_jax.envs.arm import model as arm_model
+from specrl_jax.envs.arm.physics import SUBSTEPS, Physics
+
+ROOT = Path(__file__).resolve().parents[1]
+REFERENCE = ROOT / "tests" / "envs" / "data" / "arm_pybullet_rollouts.npz"
+ARM_JOINTS, FINGER_JOINTS = list(range(7)), [9, 10]
+FORCES = list(arm_model.FORCE_LIMITS) + [170.0, 170.0]
+
+
+def pybullet_arm():
+    """(pybullet module, robot id) of a DIRECT client with the original's timestep and gravity."""
+    import pybullet
+    import pybullet_data
+
+    pybullet.connect(pybullet.DIRECT)
+    pybullet.setAdditionalSearchPath(pybullet_data.getDataPath())
+    pybullet.setTimeStep(1 / 500)
+    pybullet.setGravity(0, 0, -9.81)
+    robot = pybullet.loadURDF("franka_panda/panda.urdf", basePosition=[-0.6, 0, 0],
+                              useFixedBase=True)
+    return pybullet, robot
+
+
+def pybullet_rollouts(actions: np.ndarray) -> np.ndarray:
+    """float64[E, T+1, 7] joint angles (rad) of PyBullet's arm under `actions` float[E, T, 7],
+    each episode from the neutral pose at rest."""
+    pybullet, robot = pybullet_arm()
+    angles = lambda: [pybullet.getJointState(robot, j)[0] for j in ARM_JOINTS]
+    qpos = np.zeros((actions.shape[0], actions.shape[1] + 1, 7))
+    for e, episode in enumerate(actions):
+        for j, q in zip(ARM_JOINTS + FINGER_JOINTS, list(arm_model.NEUTRAL_QPOS) + [0.0, 0.0]):
+            pybullet.resetJointState(robot, j, q, 0.0)
+        qpos[e, 0] = angles()
+        for t, action in enumerate(episode):
+            target = list(qpos[e, t] + 0.05 * np.clip(action, -1, 1)) + [0.0, 0.0]
+            pybullet.setJointMotorControlArray(robot, ARM_JOINTS + FINGER_JOINTS,
+                                               pybullet.POSITION_CONTROL,
+                                               targetPositions=target, forces=FORCES)
+            for _ in range(SUBSTEPS):
+                pybullet.stepSimulation()
+            qpos[e, t + 1] = angles()
+    pybullet.disconnect()
+    return qpos
+
+
+def our_rollouts(actions: np.ndarray) -> np.ndarray:
+    """float64[E, T+1, 7] joint angles of our MJX arm (no table contacts) under `actions`."""
+    physics = Physics(arm_model.load_model(table_contacts=False), arm_model.FORCE_LIMITS)
+    step = jax.jit(jax.vmap(lambda s, a: physics.step(s, s.qpos + 0.05 * a)))
+    neutral = jnp.asarray(arm_model.NEUTRAL_QPOS, jnp.float32)
+    state = jax.vmap(lambda _: physics.init(neutral))(jnp.arange(actions.shape[0]))
+    qpos = [np.asarray(state.qpos)]
+    for t in range(actions.shape[1]):
+        state = step(state, jnp.asarray(actions[:, t], jnp.float32))
+        qpos.append(np.asarray(state.qpos))
+    return np.stack(qpos, 1).astype(np.float64)
+
+
+def gains_and_lags(actions: np.ndarray, qpos: np.ndarray) -> np.ndarray:
+    """float[7, 2]: per joint, the least-squares (gain, lag) of dq_t on 0.05 a_t and
+    0.05 a_{t-1} (the reference's measurement, B2)."""
+    commanded, moved = 0.05 * np.clip(actions, -1, 1), np.diff(qpos, axis=1)
+    fits = []
+    for j in range(7):
+        x = np.stack([commanded[:, 1:, j].ravel(), commanded[:, :-1, j].ravel()], 1)
+        fits.append(np.linalg.lstsq(x, moved[:, 1:, j].ravel(), rcond=None)[0])
+    return np.asarray(fits)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=4)
+    parser.add_argument("--steps", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--write-reference", action="store_true",
+                        help=f"store PyBullet's rollouts in {REFERENCE.relative_to(ROOT)}")
+    parser.add_argument("--out", default=None, help="a JSON file of the figures")
+    args = parser.parse_args()
+    import pybullet  # noqa: F401  (fail before any work when it is missing)
+
+    actions = np.random.default_rng(args.seed).uniform(
+        -1, 1, (args.episodes, args.steps, 7)).astype(np.float32)
+    theirs = pybullet_rollouts(actions)
+    start = time.perf_counter()
+    ours = our_rollouts(actions)
+    ours_s = time.perf_counter() - start
+    fit_theirs, fit_ours = gains_and_lags(actions, theirs), gains_and_lags(actions, ours)
+    print(f"{args.episodes} episodes x {args.steps} steps from the neutral pose, the same actions "
+          f"(ours {ours_s:.1f} s on {jax.devices()[0].platform})")
+    print("joint  PyBullet gain / lag    ours gain / lag")
+    for j in range(7):
+        print(f"j{j + 1}     {fit_theirs[j, 0]:.3f} / {fit_theirs[j, 1]:+.3f}        "
+              f"{fit_ours[j, 0]:.3f} / {fit_ours[j, 1]:+.3f}")
+    gap = np.abs(theirs - ours)
+    horizons = [t for t in (1, 2, 5, 10, 25, 50, 100, 200) if t <= args.steps]
+    for t in horizons:
+        print(f"after {t:3d} steps: joint difference max {gap[:, t].max():.2e} rad, "
+              f"mean {gap[:, t].mean():.2e}")
+
+    protocols = {}
+    for episodes, steps in ((1, 1000), (5, 200), (20, 200)):
+        sample = np.random.default_rng(args.seed).uniform(
+            -1, 1, (episodes, steps, 7)).astype(np.float32)
+        protocols[f"{episodes}x{steps}"] = {
+            "pybullet": gains_and_lags(sample, pybullet_rollouts(sample)),
+            "ours": gains_and_lags(sample, our_rollouts(sample))}
+    print("other protocols, gain / lag of joints 1 and 2 "
+          "(the reference's 0.61 / 0.21, 0.50 / 0.12):")
+    for name, fits in protocols.items():
+        for engine, fit in fits.items():
+            print(f"  {name:>8} {engine:>8}: j1 {fit[0, 0]:.3f} / {fit[0, 1]:+.3f}   "
+                  f"j2 {fit[1, 0]:.3f} / {fit[1, 1]:+.3f}")
+
+    if args.write_reference:
+        import pybullet as pb_module
+
+        REFERENCE.parent.mkdir(parents=True, exist_ok=True)
+        np.savez_compressed(REFERENCE, actions=actions, qpos=theirs,
+                            pybullet_version=str(pb_module.getAPIVersion()))
+        print(f"wrote {REFERENCE}")
+    if args.out:
+        import pybullet as pb_module
+
+        record = {
+            "episodes": args.episodes, "steps": args.steps, "seed": args.seed,
+            "pybullet_api_version": pb_module.getAPIVersion(),
+            "gain_lag": {"pybullet": fit_theirs.round(4).tolist(),
+                         "ours": fit_ours.round(4).tolist()},
+            "joint_difference_rad": {str(t): {"max": float(gap[:, t].max()),
+                                              "mean": float(gap[:, t].mean())} for t in horizons},
+            "protocols": {k: {e: f.round(4).tolist() for e, f in v.items()}
+                          for k, v in protocols.items()},
+            "versions": {"jax": jax.__version__, "device": str(jax.devices()[0])},
+            "date": time.strftime("%Y-%m-%d"),
+        }
+        Path(args.out).write_text(json.dumps(record, indent=1))
+        print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
