@@ -8,7 +8,8 @@ our MJX physics with the same action sequences from the neutral pose, then repor
 - per joint, the least-squares tracking gain and lag (dq_t on 0.05 a_t and 0.05 a_{t-1}) of both
   engines on the same actions, and the open-loop joint difference after 1 ... T steps;
 - both engines' gains and lags under other sampling protocols (episodes x steps): the reference's
-  lag figures (0.21 and 0.12 on joints 1 and 2) depend on where the random walk takes the arm.
+  lag figures (0.21 and 0.12 on joints 1 and 2) depend on where the random walk takes the arm;
+- saturated actions that drive the joints into their limits: how far the engines then part.
 
 PyBullet is an optional extra (`pip install -e ".[pybullet]"`; wheels for CPython up to 3.11).
 `--write-reference` stores PyBullet's rollouts in `tests/envs/data/` for the CPU test
@@ -144,6 +145,19 @@ def main() -> None:
             print(f"  {name:>8} {engine:>8}: j1 {fit[0, 0]:.3f} / {fit[0, 1]:+.3f}   "
                   f"j2 {fit[1, 0]:.3f} / {fit[1, 1]:+.3f}")
 
+    # saturated actions drive joints into their limits: PyBullet holds a limit as a hard
+    # constraint, MuJoCo's limit is soft (penetration), and the motor meets the limit differently
+    saturated = np.stack([np.ones((60, 7)), -np.ones((60, 7)),
+                          np.tile([1, -1, 1, -1, 1, -1, 1], (60, 1))]).astype(np.float32)
+    sat_theirs, sat_ours = pybullet_rollouts(saturated), our_rollouts(saturated)
+    ranges = arm_model.load_model(table_contacts=False).jnt_range[:7]
+    beyond = np.maximum(sat_ours - ranges[:, 1], ranges[:, 0] - sat_ours).max(axis=(0, 1))
+    sat_gap = np.abs(sat_theirs - sat_ours).max(axis=(0, 1))
+    print("saturated actions (all +1, all -1, alternating; 60 steps): largest joint difference "
+          + " ".join(f"{g:.3f}" for g in sat_gap) + " rad; ours beyond a limit by at most "
+          f"{max(beyond.max(), 0.0):.4f} rad (PyBullet "
+          f"{max(np.maximum(sat_theirs - ranges[:, 1], ranges[:, 0] - sat_theirs).max(), 0.0):.4f})")
+
     if args.write_reference:
         import pybullet as pb_module
 
@@ -163,6 +177,8 @@ def main() -> None:
                                               "mean": float(gap[:, t].mean())} for t in horizons},
             "protocols": {k: {e: f.round(4).tolist() for e, f in v.items()}
                           for k, v in protocols.items()},
+            "saturated_60_steps": {"joint_difference_max_rad": sat_gap.round(4).tolist(),
+                                   "ours_beyond_limit_max_rad": float(max(beyond.max(), 0.0))},
             "versions": {"jax": jax.__version__, "device": str(jax.devices()[0])},
             "date": time.strftime("%Y-%m-%d"),
         }
