@@ -9,7 +9,9 @@ our MJX physics with the same action sequences from the neutral pose, then repor
   engines on the same actions, and the open-loop joint difference after 1 ... T steps;
 - both engines' gains and lags under other sampling protocols (episodes x steps): the reference's
   lag figures (0.21 and 0.12 on joints 1 and 2) depend on where the random walk takes the arm;
-- saturated actions that drive the joints into their limits: how far the engines then part.
+- saturated actions that drive the joints into their limits: how far the engines then part;
+- the end-effector IDs' kinematics: the grasp target's position and `calculateInverseKinematics`
+  (the original's joint targets) against ours on random joint configurations.
 
 PyBullet is an optional extra (`pip install -e ".[pybullet]"`; wheels for CPython up to 3.11).
 `--write-reference` stores PyBullet's rollouts in `tests/envs/data/` for the CPU test
@@ -33,11 +35,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from specrl_jax.envs.arm import model as arm_model
+from specrl_jax.envs.arm.ik import EndEffectorIK
 from specrl_jax.envs.arm.physics import SUBSTEPS, Physics
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "tests" / "envs" / "data" / "arm_pybullet_rollouts.npz"
-ARM_JOINTS, FINGER_JOINTS = list(range(7)), [9, 10]
+ARM_JOINTS, FINGER_JOINTS, GRASP_TARGET = list(range(7)), [9, 10], 11
 FORCES = list(arm_model.FORCE_LIMITS) + [170.0, 170.0]
 
 
@@ -75,6 +78,31 @@ def pybullet_rollouts(actions: np.ndarray) -> np.ndarray:
             qpos[e, t + 1] = angles()
     pybullet.disconnect()
     return qpos
+
+
+def pybullet_ik(qpos: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """PyBullet's grasp-target position float64[K, 3] (FK) at joint angles `qpos` float[K, 7],
+    and its `calculateInverseKinematics` joint angles float64[K, 7] from there toward `targets`
+    float[K, 3] with the gripper down (the original's end-effector control, no optional
+    arguments)."""
+    pybullet, robot = pybullet_arm()
+    points, solved = [], []
+    for q, target in zip(qpos, targets):
+        for j, angle in zip(ARM_JOINTS + FINGER_JOINTS, list(q) + [0.0, 0.0]):
+            pybullet.resetJointState(robot, j, angle, 0.0)
+        points.append(pybullet.getLinkState(robot, GRASP_TARGET, computeForwardKinematics=True)[4])
+        solved.append(pybullet.calculateInverseKinematics(robot, GRASP_TARGET, list(target),
+                                                          [1.0, 0.0, 0.0, 0.0])[:7])
+    pybullet.disconnect()
+    return np.asarray(points), np.asarray(solved)
+
+
+def our_ik(qpos: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`pybullet_ik`'s figures from our kinematics and IK (float32, jitted)."""
+    ik = EndEffectorIK(arm_model.load_model(table_contacts=False))
+    q, t = jnp.asarray(qpos, jnp.float32), jnp.asarray(targets, jnp.float32)
+    points = jax.jit(jax.vmap(lambda x: ik.pose(x)[0]))(q)
+    return np.asarray(points, np.float64), np.asarray(jax.jit(jax.vmap(ik.solve))(q, t), np.float64)
 
 
 def our_rollouts(actions: np.ndarray) -> np.ndarray:
@@ -153,16 +181,29 @@ def main() -> None:
     ranges = arm_model.load_model(table_contacts=False).jnt_range[:7]
     beyond = np.maximum(sat_ours - ranges[:, 1], ranges[:, 0] - sat_ours).max(axis=(0, 1))
     sat_gap = np.abs(sat_theirs - sat_ours).max(axis=(0, 1))
+    their_beyond = np.maximum(sat_theirs - ranges[:, 1], ranges[:, 0] - sat_theirs).max()
     print("saturated actions (all +1, all -1, alternating; 60 steps): largest joint difference "
           + " ".join(f"{g:.3f}" for g in sat_gap) + " rad; ours beyond a limit by at most "
           f"{max(beyond.max(), 0.0):.4f} rad (PyBullet "
-          f"{max(np.maximum(sat_theirs - ranges[:, 1], ranges[:, 0] - sat_theirs).max(), 0.0):.4f})")
+          f"{max(their_beyond, 0.0):.4f})")
+
+    rng = np.random.default_rng(args.seed)
+    ik_qpos = np.asarray(arm_model.NEUTRAL_QPOS) + rng.uniform(-0.3, 0.3, (32, 7))
+    ik_qpos[0] = arm_model.NEUTRAL_QPOS
+    start_points, _ = pybullet_ik(ik_qpos, np.zeros((32, 3)))  # where each grasp target is
+    ik_targets = start_points + 0.05 * rng.uniform(-1, 1, (32, 3))
+    their_points, their_ik = pybullet_ik(ik_qpos, ik_targets)
+    our_points, our_solved = our_ik(ik_qpos, ik_targets)
+    fk_gap, ik_gap = np.abs(their_points - our_points).max(), np.abs(their_ik - our_solved).max()
+    print(f"32 joint configurations (neutral +- 0.3 rad), targets 5 cm away: grasp-target FK "
+          f"apart by {fk_gap:.1e} m, calculateInverseKinematics vs ours {ik_gap:.1e} rad")
 
     if args.write_reference:
         import pybullet as pb_module
 
         REFERENCE.parent.mkdir(parents=True, exist_ok=True)
-        np.savez_compressed(REFERENCE, actions=actions, qpos=theirs,
+        np.savez_compressed(REFERENCE, actions=actions, qpos=theirs, ik_qpos=ik_qpos,
+                            ik_targets=ik_targets, ik_grasp_target=their_points, ik_joints=their_ik,
                             pybullet_version=str(pb_module.getAPIVersion()))
         print(f"wrote {REFERENCE}")
     if args.out:
@@ -177,6 +218,8 @@ def main() -> None:
                                               "mean": float(gap[:, t].mean())} for t in horizons},
             "protocols": {k: {e: f.round(4).tolist() for e, f in v.items()}
                           for k, v in protocols.items()},
+            "ik_32_configurations": {"grasp_target_fk_max_m": float(fk_gap),
+                                     "ik_joint_max_rad": float(ik_gap)},
             "saturated_60_steps": {"joint_difference_max_rad": sat_gap.round(4).tolist(),
                                    "ours_beyond_limit_max_rad": float(max(beyond.max(), 0.0))},
             "versions": {"jax": jax.__version__, "device": str(jax.devices()[0])},

@@ -1,7 +1,9 @@
 """End-effector control (`PandaLTLReach{0,1}-v0`): our IK against a float64 transcription of
-PyBullet's iteration on MuJoCo C kinematics, and the end-effector IDs through make and Gymnasium."""
+PyBullet's iteration on MuJoCo C kinematics and against PyBullet's own results, and the
+end-effector IDs through make and Gymnasium."""
 
 import warnings
+from pathlib import Path
 
 import gymnasium
 import jax
@@ -81,6 +83,20 @@ def test_ik_matches_pybullets_iteration_on_mujoco_c(ik):
             # (from a tilted start they turn the gripper down first, PyBullet's as ours)
             reached = np.asarray(pose(jnp.asarray(ours))[0])
             assert np.linalg.norm(reached - target) < 0.5 * np.linalg.norm(point - target)
+
+
+def test_ik_and_grasp_target_match_pybullet_itself(ik):
+    """PyBullet's `calculateInverseKinematics` and grasp-target FK (stored by
+    `benchmarks/arm_vs_pybullet.py --write-reference`: 32 configurations within 0.3 rad of the
+    neutral pose, targets up to 5 cm away, gripper down) against ours: measured 6e-7 rad and
+    3e-7 m."""
+    reference = np.load(Path(__file__).parent / "data" / "arm_pybullet_rollouts.npz")
+    qpos = jnp.asarray(reference["ik_qpos"], jnp.float32)
+    points = jax.jit(jax.vmap(lambda q: ik.pose(q)[0]))(qpos)
+    solved = jax.jit(jax.vmap(ik.solve))(qpos, jnp.asarray(reference["ik_targets"], jnp.float32))
+    np.testing.assert_allclose(points, reference["ik_grasp_target"], atol=1e-5)
+    np.testing.assert_allclose(solved, reference["ik_joints"], atol=1e-5)
+    assert np.abs(reference["ik_joints"] - reference["ik_qpos"]).max() > 0.01  # the IK moved
 
 
 def test_joint_targets_move_the_grasp_target_by_the_action(ik):
