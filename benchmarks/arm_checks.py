@@ -192,8 +192,8 @@ def saturated_actions(key: jax.Array, num_steps: int, num_envs: int) -> np.ndarr
 
 def c_rollout(model: mujoco.MjModel, start: PhysicsState, actions: np.ndarray) -> dict:
     """The env's control law on MuJoCo C (float64): each env step the joint targets
-    `q + 0.05 a`, then per substep `mj_step1`, the motor torques of `physics.motor_torque` (run
-    in float64) from C's mass matrix and bias forces, and `mj_step2`.
+    `q + 0.05 a`, then per substep `mj_step1`, the motor and joint-limit forces of
+    `physics.motor_torque` (run in float64) from C's mass matrix and bias forces, and `mj_step2`.
 
     Args:
         model: the MuJoCo model (its `opt` is C's solver setting).
@@ -211,7 +211,9 @@ def c_rollout(model: mujoco.MjModel, start: PhysicsState, actions: np.ndarray) -
         data.qacc_warmstart[:] = np.asarray(start.qacc_warmstart[i])
     limit = np.asarray(arm_model.FORCE_LIMITS, np.float64)
     with jax.enable_x64(True):
-        torque = jax.jit(jax.vmap(functools.partial(motor_torque, h=float(model.opt.timestep)),
+        joint_range = jnp.asarray(model.jnt_range[:7])
+        torque = jax.jit(jax.vmap(functools.partial(motor_torque, h=float(model.opt.timestep),
+                                                    joint_range=joint_range),
                                   in_axes=(0, 0, 0, 0, 0, None)))
         fields = ("qpos", "qvel", "qacc_warmstart")
         out = {k: np.zeros((num_steps + 1, num_envs, model.nv)) for k in fields}

@@ -173,8 +173,7 @@ def main() -> None:
             print(f"  {name:>8} {engine:>8}: j1 {fit[0, 0]:.3f} / {fit[0, 1]:+.3f}   "
                   f"j2 {fit[1, 0]:.3f} / {fit[1, 1]:+.3f}")
 
-    # saturated actions drive joints into their limits: PyBullet holds a limit as a hard
-    # constraint, MuJoCo's limit is soft (penetration), and the motor meets the limit differently
+    # saturated actions drive joints into their limits, which Bullet solves with the motor
     saturated = np.stack([np.ones((60, 7)), -np.ones((60, 7)),
                           np.tile([1, -1, 1, -1, 1, -1, 1], (60, 1))]).astype(np.float32)
     sat_theirs, sat_ours = pybullet_rollouts(saturated), our_rollouts(saturated)
@@ -204,6 +203,7 @@ def main() -> None:
         REFERENCE.parent.mkdir(parents=True, exist_ok=True)
         np.savez_compressed(REFERENCE, actions=actions, qpos=theirs, ik_qpos=ik_qpos,
                             ik_targets=ik_targets, ik_grasp_target=their_points, ik_joints=their_ik,
+                            saturated_actions=saturated, saturated_qpos=sat_theirs,
                             pybullet_version=str(pb_module.getAPIVersion()))
         print(f"wrote {REFERENCE}")
     if args.out:

@@ -2,11 +2,13 @@
 
 PyBullet's POSITION_CONTROL (the original's) is a velocity-level motor constraint: every physics
 substep it asks for joint velocity `v* = 50 (q_target - q)` (position gain 0.1 over h = 1/500 s),
-with the impulse of each joint limited to `force_limit * h`, and solves all joints together. Here
-each substep takes MuJoCo's smooth dynamics, finds the joint torques that reach `v*` within
-the per-joint limits (a box-constrained problem in the inverse mass matrix, solved by projected
-Gauss-Seidel as Bullet's sequential-impulse solver does), applies them, then lets MuJoCo solve
-the joint limits and table/floor contacts and integrate (semi-implicit Euler, as Bullet).
+with the impulse of each joint limited to `force_limit * h`, and solves all joints together with
+the joint-limit constraints, which let a joint move at most to its limit within the substep. Here
+each substep takes MuJoCo's smooth dynamics, finds the joint forces of the motor and limit rows
+together (projected Gauss-Seidel in the inverse mass matrix, as Bullet's sequential-impulse
+solver), applies them, then lets MuJoCo solve the table/floor contacts and integrate
+(semi-implicit Euler, as Bullet). MuJoCo's own soft joint limits stay in the model as a backstop;
+they act only where a contact pushes a joint past its limit.
 """
 
 from __future__ import annotations
@@ -54,34 +56,59 @@ def spd_inverse(mass: jax.Array) -> jax.Array:
 
 def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: jax.Array,
                  target: jax.Array, force_limit: jax.Array, h: float,
-                 sweeps: int = PGS_SWEEPS, inverse: jax.Array | None = None) -> jax.Array:
-    """Joint torques of PyBullet's velocity-level motor, float32[N] (N m).
+                 sweeps: int = PGS_SWEEPS, inverse: jax.Array | None = None,
+                 joint_range: jax.Array | None = None) -> jax.Array:
+    """Joint forces of PyBullet's velocity-level motor, and of its joint limits when
+    `joint_range` is given, float32[N] (N m).
 
     Args:
         mass: float[N, N] joint-space mass matrix.
         free_accel: float[N] acceleration without the motor (gravity, Coriolis), rad/s^2.
         qvel, qpos, target: float[N] joint velocity, angle and target angle.
-        force_limit: float[N] per-joint torque bound, N m.
+        force_limit: float[N] per-joint motor torque bound, N m.
         h: the substep, s.
         inverse: float[N, N] the inverse of `mass`, if the caller has it.
+        joint_range: float[N, 2] lower and upper joint limits, rad (None: no limit rows).
 
-    Returns the torques `tau`, `|tau_i| <= force_limit_i`, such that each unsaturated joint
-    reaches `v* = MOTOR_RATE (target - q)` after the substep (given the saturated ones).
+    Returns the motor torques `tau`, `|tau_i| <= force_limit_i`, such that each unsaturated joint
+    reaches `v* = MOTOR_RATE (target - q)` after the substep (given the saturated ones), plus the
+    limit forces (a joint's lower limit pushes up, its upper limit down, each only as much as
+    keeps `q + h v` within the range; beyond it, back to it in one substep).
     """
     inverse = spd_inverse(mass) if inverse is None else inverse
-    want = (MOTOR_RATE * (target - qpos) - qvel) / h - free_accel  # needed extra acceleration
+    speed_to_accel = lambda speed: (speed - qvel) / h - free_accel  # extra acceleration needed
+    want = speed_to_accel(MOTOR_RATE * (target - qpos))
     tau = jnp.clip(mass @ want, -force_limit, force_limit)
     diag = jnp.diagonal(inverse)
+    num = tau.shape[0]
 
-    def sweep(_, tau):
-        for i in range(tau.shape[0]):  # rows in order, as Bullet's sequential impulses
-            residual = want[i] - inverse[i] @ tau
-            updated = jnp.clip(tau[i] + residual / diag[i], -force_limit[i], force_limit[i])
-            tau = tau.at[i].set(updated)
+    def motor_rows(tau, limit):
+        for i in range(num):  # rows in order, as Bullet's sequential impulses
+            residual = want[i] - inverse[i] @ (tau + limit)
+            tau = tau.at[i].set(jnp.clip(tau[i] + residual / diag[i], -force_limit[i],
+                                         force_limit[i]))
         return tau
 
-    tau = jax.lax.fori_loop(0, sweeps, sweep, tau)
-    return tau
+    if joint_range is None:
+        return jax.lax.fori_loop(0, sweeps, lambda _, t: motor_rows(t, jnp.zeros_like(t)), tau)
+
+    top = speed_to_accel((joint_range[:, 1] - qpos) / h)
+    bottom = speed_to_accel((joint_range[:, 0] - qpos) / h)
+
+    def sweep(_, carry):
+        tau, down, up = carry  # motor torques, upper-limit forces <= 0, lower-limit forces >= 0
+        tau = motor_rows(tau, down + up)
+        for i in range(num):
+            accel = inverse[i] @ (tau + down + up)
+            new_down = jnp.minimum(down[i] + (top[i] - accel) / diag[i], 0.0)
+            accel = accel + (new_down - down[i]) * diag[i]
+            down = down.at[i].set(new_down)
+            up = up.at[i].set(jnp.maximum(up[i] + (bottom[i] - accel) / diag[i], 0.0))
+        return tau, down, up
+
+    zeros = jnp.zeros_like(tau)
+    tau, down, up = jax.lax.fori_loop(0, sweeps, sweep, (tau, zeros, zeros))
+    return tau + down + up
 
 
 class Physics:
@@ -92,6 +119,9 @@ class Physics:
         self.model = mjx.put_model(model, impl="jax")
         self.substeps = substeps
         self.force_limit = np.asarray(force_limit, np.float32)
+        arm = slice(0, len(self.force_limit))
+        unlimited = np.where(model.jnt_limited[arm], 0.0, np.inf)[:, None] * np.array([-1.0, 1.0])
+        self.joint_range = (model.jnt_range[arm] + unlimited).astype(np.float32)
         self._template = mjx.make_data(self.model)
         self.kinematics = ChainKinematics(model)
         self.collision = Collision(model, self.model)
@@ -125,7 +155,8 @@ class Physics:
         free_accel = inverse @ (data.qfrc_passive - data.qfrc_bias)
         h = float(self.mj_model.opt.timestep)
         tau = motor_torque(mass, free_accel, data.qvel, data.qpos, target,
-                           jnp.asarray(self.force_limit), h, inverse=inverse)
+                           jnp.asarray(self.force_limit), h, inverse=inverse,
+                           joint_range=jnp.asarray(self.joint_range))
         data = data.replace(qfrc_applied=tau)
         data = mjx.fwd_acceleration(m, mjx.fwd_actuation(m, data))
         if self._has_constraints:
