@@ -244,22 +244,31 @@ def test_tracking_gains_match_the_original_under_random_actions(physics):
     assert abs(lags[0] - 0.21) < 0.1 and 0.05 < lags[1] < 0.4 and np.abs(lags[2:]).max() < 0.05, lags
 
 
+PYBULLET_ROLLOUTS = Path(__file__).parent / "data" / "arm_pybullet_rollouts.npz"
+
+
+def _rollouts_from_neutral(physics, actions):
+    """float32[E, T+1, 7] joint angles of our arm under `actions` float[E, T, 7] (joint control,
+    targets `q + 0.05 a`), each episode from the neutral pose at rest."""
+    step = jax.jit(jax.vmap(lambda s, a: physics.step(s, s.qpos + 0.05 * a)))
+    neutral = jnp.asarray(arm_model.NEUTRAL_QPOS, jnp.float32)
+    state = jax.vmap(lambda _: physics.init(neutral))(jnp.arange(actions.shape[0]))
+    qpos = [np.asarray(state.qpos)]
+    for t in range(actions.shape[1]):
+        state = step(state, jnp.asarray(actions[:, t]))
+        qpos.append(np.asarray(state.qpos))
+    return np.stack(qpos, 1)
+
+
 def test_motor_matches_pybullet_on_the_same_actions(physics):
     """PyBullet's own arm (the original's engine; its rollouts written by
     `benchmarks/arm_vs_pybullet.py --write-reference`: 4 episodes x 100 uniform random actions
     from the neutral pose) against ours under the same actions: per-joint tracking gain and lag
     to 0.01 (measured: 0.001), joint angles within 3e-3 rad over 10 steps (measured 1.5e-3) and
     2e-2 rad over 100 (measured 1.0e-2)."""
-    reference = np.load(Path(__file__).parent / "data" / "arm_pybullet_rollouts.npz")
+    reference = np.load(PYBULLET_ROLLOUTS)
     actions, theirs = reference["actions"], reference["qpos"]
-    step = jax.jit(jax.vmap(lambda s, a: physics.step(s, s.qpos + 0.05 * a)))
-    neutral = jnp.asarray(arm_model.NEUTRAL_QPOS, jnp.float32)
-    state = jax.vmap(lambda _: physics.init(neutral))(jnp.arange(actions.shape[0]))
-    ours = [np.asarray(state.qpos)]
-    for t in range(actions.shape[1]):
-        state = step(state, jnp.asarray(actions[:, t]))
-        ours.append(np.asarray(state.qpos))
-    ours = np.stack(ours, 1)
+    ours = _rollouts_from_neutral(physics, actions)
     assert np.abs(theirs[:, 0] - ours[:, 0]).max() < 1e-6  # both start at the neutral pose
     gap = np.abs(theirs - ours)
     assert gap[:, :11].max() < 3e-3 and gap.max() < 2e-2, gap.max(axis=(0, 2))
@@ -280,16 +289,9 @@ def test_joint_limits_hold_with_the_motor_as_in_pybullet(physics):
     `benchmarks/arm_vs_pybullet.py`) against ours within 0.03 rad (measured 0.011; with the
     limits left to MuJoCo's soft constraint after the motor, 0.29), every joint within 1e-3 rad
     of its range (measured 1e-4; soft limits: 0.035)."""
-    reference = np.load(Path(__file__).parent / "data" / "arm_pybullet_rollouts.npz")
+    reference = np.load(PYBULLET_ROLLOUTS)
     actions, theirs = reference["saturated_actions"], reference["saturated_qpos"]
-    step = jax.jit(jax.vmap(lambda s, a: physics.step(s, s.qpos + 0.05 * a)))
-    neutral = jnp.asarray(arm_model.NEUTRAL_QPOS, jnp.float32)
-    state = jax.vmap(lambda _: physics.init(neutral))(jnp.arange(actions.shape[0]))
-    ours = [np.asarray(state.qpos)]
-    for t in range(actions.shape[1]):
-        state = step(state, jnp.asarray(actions[:, t]))
-        ours.append(np.asarray(state.qpos))
-    ours = np.stack(ours, 1)
+    ours = _rollouts_from_neutral(physics, actions)
     low, high = physics.mj_model.jnt_range[:7].T
     assert np.all(ours > low - 1e-3) and np.all(ours < high + 1e-3)
     assert (np.abs(theirs - high) < 1e-3).sum() > 50  # the rollouts do reach the limits
