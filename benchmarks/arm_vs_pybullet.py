@@ -11,7 +11,9 @@ our MJX physics with the same action sequences from the neutral pose, then repor
   lag figures (0.21 and 0.12 on joints 1 and 2) depend on where the random walk takes the arm;
 - saturated actions that drive the joints into their limits: how far the engines then part;
 - the end-effector IDs' kinematics: the grasp target's position and `calculateInverseKinematics`
-  (the original's joint targets) against ours on random joint configurations.
+  (the original's joint targets) against ours on random joint configurations;
+- mode 1's link-to-sphere distances (`getClosestPoints`, the original's labels and features)
+  against ours from the env's poses and hulls.
 
 PyBullet is an optional extra (`pip install -e ".[pybullet]"`; wheels for CPython up to 3.11).
 `--write-reference` stores PyBullet's rollouts in `tests/envs/data/` for the CPU test
@@ -34,13 +36,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import specrl_jax
 from specrl_jax.envs.arm import model as arm_model
+from specrl_jax.envs.arm import sensors
 from specrl_jax.envs.arm.ik import EndEffectorIK
 from specrl_jax.envs.arm.physics import SUBSTEPS, Physics
 
 ROOT = Path(__file__).resolve().parents[1]
 REFERENCE = ROOT / "tests" / "envs" / "data" / "arm_pybullet_rollouts.npz"
 ARM_JOINTS, FINGER_JOINTS, GRASP_TARGET = list(range(7)), [9, 10], 11
+MODE1_LINKS = [0, 1, 2, 3, 4, 5, 6, 8, 9, 10]
 FORCES = list(arm_model.FORCE_LIMITS) + [170.0, 170.0]
 
 
@@ -103,6 +108,43 @@ def our_ik(qpos: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarra
     q, t = jnp.asarray(qpos, jnp.float32), jnp.asarray(targets, jnp.float32)
     points = jax.jit(jax.vmap(lambda x: ik.pose(x)[0]))(q)
     return np.asarray(points, np.float64), np.asarray(jax.jit(jax.vmap(ik.solve))(q, t), np.float64)
+
+
+def pybullet_link_distances(qpos: np.ndarray, centres: np.ndarray, radius: float) -> np.ndarray:
+    """float64[K, 10, Z]: PyBullet's signed distances (m) from the mode-1 links (the original's
+    `[0, ..., 6, 8, 9, 10]`) to spheres of `radius` at `centres` float[K, Z, 3], the arm at
+    `qpos` float[K, 7] (`getClosestPoints`, as the original's labels and features)."""
+    pybullet, robot = pybullet_arm()
+    shape = pybullet.createCollisionShape(pybullet.GEOM_SPHERE, radius=radius)
+    spheres = [pybullet.createMultiBody(0, shape, basePosition=[0, 0, 5 + i])
+               for i in range(centres.shape[1])]
+    out = np.zeros((len(qpos), len(MODE1_LINKS), centres.shape[1]))
+    for k, (q, where) in enumerate(zip(qpos, centres)):
+        for j, angle in zip(ARM_JOINTS, q):
+            pybullet.resetJointState(robot, j, angle, 0.0)
+        for sphere, centre in zip(spheres, where):
+            pybullet.resetBasePositionAndOrientation(sphere, list(centre), [0, 0, 0, 1])
+        for li, link in enumerate(MODE1_LINKS):
+            for z, sphere in enumerate(spheres):
+                points = pybullet.getClosestPoints(robot, sphere, 10.0, linkIndexA=link)
+                out[k, li, z] = min(point[8] for point in points)
+    pybullet.disconnect()
+    return out
+
+
+def our_link_distances(qpos: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """`pybullet_link_distances`' figures from `PandaLTLReach1Joints-v0`'s own poses and hulls."""
+    env, params = specrl_jax.make("PandaLTLReach1Joints-v0")
+
+    def distances(q, where):
+        _, state = env.reset_to(jax.random.key(0), {"region_pos": where, "joint_qpos": q}, params)
+        pose = env.poses(state)
+        return sensors.link_sphere_distances(pose["link_pos"], pose["link_mat"], env._triangles,
+                                             state.region_pos, jnp.asarray(env.region_radius))[0]
+
+    out = jax.jit(jax.vmap(distances))(jnp.asarray(qpos, jnp.float32),
+                                       jnp.asarray(centres, jnp.float32))
+    return np.asarray(out, np.float64)
 
 
 def our_rollouts(actions: np.ndarray) -> np.ndarray:
@@ -197,6 +239,20 @@ def main() -> None:
     print(f"32 joint configurations (neutral +- 0.3 rad), targets 5 cm away: grasp-target FK "
           f"apart by {fk_gap:.1e} m, calculateInverseKinematics vs ours {ik_gap:.1e} rad")
 
+    # mode-1 distances: 8 spheres (the benchmark's radius) placed near random link points
+    dist_qpos = np.asarray(arm_model.NEUTRAL_QPOS) + rng.uniform(-0.4, 0.4, (24, 7))
+    anchors, _ = pybullet_ik(dist_qpos, np.zeros((24, 3)))  # the grasp target of each pose
+    dist_centres = anchors[:, None] + rng.normal(0, 0.12, (24, 8, 3))
+    their_dist = pybullet_link_distances(dist_qpos, dist_centres, 0.06)
+    our_dist = our_link_distances(dist_qpos, dist_centres)
+    near = np.abs(their_dist) < 0.1
+    offset = (their_dist - our_dist)[near]
+    touch_agree = ((their_dist <= 0) == (our_dist <= 0))[np.abs(their_dist) < 0.02].mean()
+    print(f"mode-1 link-sphere distances, {near.sum()} pairs within 10 cm: PyBullet - ours median "
+          f"{np.median(offset) * 1e3:.3f} mm (range {offset.min() * 1e3:.3f} .. "
+          f"{offset.max() * 1e3:.3f}; PyBullet's collision margin); touch labels agree on "
+          f"{touch_agree:.3f} of the pairs within 2 cm")
+
     if args.write_reference:
         import pybullet as pb_module
 
@@ -204,6 +260,7 @@ def main() -> None:
         np.savez_compressed(REFERENCE, actions=actions, qpos=theirs, ik_qpos=ik_qpos,
                             ik_targets=ik_targets, ik_grasp_target=their_points, ik_joints=their_ik,
                             saturated_actions=saturated, saturated_qpos=sat_theirs,
+                            dist_qpos=dist_qpos, dist_centres=dist_centres, dist_pybullet=their_dist,
                             pybullet_version=str(pb_module.getAPIVersion()))
         print(f"wrote {REFERENCE}")
     if args.out:
@@ -220,6 +277,11 @@ def main() -> None:
                           for k, v in protocols.items()},
             "ik_32_configurations": {"grasp_target_fk_max_m": float(fk_gap),
                                      "ik_joint_max_rad": float(ik_gap)},
+            "mode1_distances": {"pairs_within_10cm": int(near.sum()),
+                                "pybullet_minus_ours_median_m": float(np.median(offset)),
+                                "pybullet_minus_ours_min_m": float(offset.min()),
+                                "pybullet_minus_ours_max_m": float(offset.max()),
+                                "touch_agreement_within_2cm": float(touch_agree)},
             "saturated_60_steps": {"joint_difference_max_rad": sat_gap.round(4).tolist(),
                                    "ours_beyond_limit_max_rad": float(max(beyond.max(), 0.0))},
             "versions": {"jax": jax.__version__, "device": str(jax.devices()[0])},
