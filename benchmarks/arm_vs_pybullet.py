@@ -13,13 +13,14 @@ our MJX physics with the same action sequences from the neutral pose, then repor
 - the end-effector IDs' kinematics: the grasp target's position and `calculateInverseKinematics`
   (the original's joint targets) against ours on random joint configurations;
 - mode 1's link-to-sphere distances (`getClosestPoints`, the original's labels and features)
-  against ours from the env's poses and hulls.
+  against ours from the env's poses and hulls;
+- constant actions that press the arm into the table: how far the engines part in contact.
 
 PyBullet is an optional extra (`pip install -e ".[pybullet]"`; wheels for CPython up to 3.11).
 `--write-reference` stores PyBullet's rollouts in `tests/envs/data/` for the CPU test
 `tests/envs/test_arm_physics.py::test_motor_matches_pybullet_on_the_same_actions`, which then
-needs no PyBullet. Neither engine has the table or floor here: from the neutral pose 100 random
-steps reach neither.
+needs no PyBullet. The random and saturated rollouts run without the table and floor (from the
+neutral pose they reach neither); the pressing ones with them.
 
     python benchmarks/arm_vs_pybullet.py --write-reference \
         --out benchmarks/results/arm_vs_pybullet.json
@@ -63,10 +64,15 @@ def pybullet_arm():
     return pybullet, robot
 
 
-def pybullet_rollouts(actions: np.ndarray) -> np.ndarray:
+def pybullet_rollouts(actions: np.ndarray, table: bool = False) -> np.ndarray:
     """float64[E, T+1, 7] joint angles (rad) of PyBullet's arm under `actions` float[E, T, 7],
-    each episode from the neutral pose at rest."""
+    each episode from the neutral pose at rest; with `table`, the original's table and floor
+    (reference B3; Bullet's default friction)."""
     pybullet, robot = pybullet_arm()
+    if table:
+        for half, centre in (([0.55, 0.35, 0.2], [-0.3, 0, -0.2]), ([3, 3, 0.01], [0, 0, -0.41])):
+            box = pybullet.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half)
+            pybullet.createMultiBody(0, box, basePosition=centre)
     angles = lambda: [pybullet.getJointState(robot, j)[0] for j in ARM_JOINTS]
     qpos = np.zeros((actions.shape[0], actions.shape[1] + 1, 7))
     for e, episode in enumerate(actions):
@@ -147,9 +153,10 @@ def our_link_distances(qpos: np.ndarray, centres: np.ndarray) -> np.ndarray:
     return np.asarray(out, np.float64)
 
 
-def our_rollouts(actions: np.ndarray) -> np.ndarray:
-    """float64[E, T+1, 7] joint angles of our MJX arm (no table contacts) under `actions`."""
-    physics = Physics(arm_model.load_model(table_contacts=False), arm_model.FORCE_LIMITS)
+def our_rollouts(actions: np.ndarray, table: bool = False) -> np.ndarray:
+    """float64[E, T+1, 7] joint angles of our MJX arm under `actions` (table and floor contacts
+    with `table`)."""
+    physics = Physics(arm_model.load_model(table_contacts=table), arm_model.FORCE_LIMITS)
     step = jax.jit(jax.vmap(lambda s, a: physics.step(s, s.qpos + 0.05 * a)))
     neutral = jnp.asarray(arm_model.NEUTRAL_QPOS, jnp.float32)
     state = jax.vmap(lambda _: physics.init(neutral))(jnp.arange(actions.shape[0]))
@@ -228,6 +235,16 @@ def main() -> None:
           f"{max(beyond.max(), 0.0):.4f} rad (PyBullet "
           f"{max(their_beyond, 0.0):.4f})")
 
+    # constant actions that press the arm into the table (joint 2 forward, with 4 or 6) or not
+    pressing = {"2+": [0, 1, 0, 0, 0, 0, 0], "2+ 4+": [0, 1, 0, 1, 0, 0, 0],
+                "2+ 4-": [0, 1, 0, -1, 0, 0, 0], "2+ 6-": [0, 1, 0, 0, 0, -1, 0],
+                "4+ (no contact)": [0, 0, 0, 1, 0, 0, 0]}
+    press = np.stack([np.tile(v, (60, 1)) for v in pressing.values()]).astype(np.float32)
+    press_gap = np.abs(pybullet_rollouts(press, table=True)
+                       - our_rollouts(press, table=True)).max(axis=(1, 2))
+    print("the table: constant actions for 60 steps, largest joint difference: "
+          + ", ".join(f"joints {k} {g:.3f}" for k, g in zip(pressing, press_gap)) + " rad")
+
     rng = np.random.default_rng(args.seed)
     ik_qpos = np.asarray(arm_model.NEUTRAL_QPOS) + rng.uniform(-0.3, 0.3, (32, 7))
     ik_qpos[0] = arm_model.NEUTRAL_QPOS
@@ -260,7 +277,8 @@ def main() -> None:
         np.savez_compressed(REFERENCE, actions=actions, qpos=theirs, ik_qpos=ik_qpos,
                             ik_targets=ik_targets, ik_grasp_target=their_points, ik_joints=their_ik,
                             saturated_actions=saturated, saturated_qpos=sat_theirs,
-                            dist_qpos=dist_qpos, dist_centres=dist_centres, dist_pybullet=their_dist,
+                            dist_qpos=dist_qpos, dist_centres=dist_centres,
+                            dist_pybullet=their_dist,
                             pybullet_version=str(pb_module.getAPIVersion()))
         print(f"wrote {REFERENCE}")
     if args.out:
@@ -282,6 +300,8 @@ def main() -> None:
                                 "pybullet_minus_ours_min_m": float(offset.min()),
                                 "pybullet_minus_ours_max_m": float(offset.max()),
                                 "touch_agreement_within_2cm": float(touch_agree)},
+            "table_60_steps_joint_difference_max_rad": dict(zip(pressing,
+                                                                press_gap.round(4).tolist())),
             "saturated_60_steps": {"joint_difference_max_rad": sat_gap.round(4).tolist(),
                                    "ours_beyond_limit_max_rad": float(max(beyond.max(), 0.0))},
             "versions": {"jax": jax.__version__, "device": str(jax.devices()[0])},

@@ -197,13 +197,14 @@ def test_one_env_step_with_contacts_and_limits_matches_mujoco_c_at_the_line_sear
 def test_one_env_step_with_contacts_and_limits_matches_mujoco_c_at_the_newton_cap():
     """The model's Newton iteration cap and tolerance (`assets/panda.xml`) against MuJoCo's 100
     and 1e-8 (MJX, the model's line search) and MuJoCo C (float64, MuJoCo's default solver):
-    one env step from `_contact_starts`. The cap lands where 100 does (caps of 5 and 3 depart by
-    2.4e-2 and 1.3e-2 rad here), and both as near C as measured."""
+    one env step from `_contact_starts`. The cap lands where 100 does (within 1.4e-5 rad at one
+    of the 50 starts since the pairs take Bullet's friction, bit-identical at the others; caps of
+    5 and 3 depart by 2.4e-2 and 1.3e-2 rad here), and both as near C as measured."""
     model = _contact_model()
     assert model.opt.iterations < 100 and model.opt.tolerance == 1e-8  # the cap under test
     after = {"cap": _contact_step_mjx(),
              "100": _contact_step_mjx(iterations=100, tolerance=1e-8)}
-    assert np.abs(after["cap"] - after["100"]).max() < 1e-5
+    assert np.abs(after["cap"] - after["100"]).max() < 5e-5
     _assert_as_near_c_as_measured(after)
 
 
