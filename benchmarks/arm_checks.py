@@ -200,7 +200,8 @@ def c_rollout(model: mujoco.MjModel, start: PhysicsState, actions: np.ndarray) -
         start: batched `PhysicsState` (float[B, 7] each) to start from.
         actions: float[T, B, 7].
 
-    Returns `qpos`, `qvel`, `qacc_warmstart` float64[T + 1, B, 7] and, per env step
+    Returns `qpos`, `qvel`, `qacc_warmstart`, `qfrc_constraint` float64[T + 1, B, 7] and, per
+    env step
     int32[T, B], the most contacts (`ncon`), joint-limit rows (`nl`), Newton iterations and
     line-search cost evaluations of one substep (`ls_evals`: the most in one Newton iteration).
     """
@@ -209,13 +210,14 @@ def c_rollout(model: mujoco.MjModel, start: PhysicsState, actions: np.ndarray) -
     for i, data in enumerate(datas):
         data.qpos[:], data.qvel[:] = np.asarray(start.qpos[i]), np.asarray(start.qvel[i])
         data.qacc_warmstart[:] = np.asarray(start.qacc_warmstart[i])
+        data.qfrc_constraint[:] = np.asarray(start.qfrc_constraint[i])
     limit = np.asarray(arm_model.FORCE_LIMITS, np.float64)
     with jax.enable_x64(True):
         joint_range = jnp.asarray(model.jnt_range[:7])
         torque = jax.jit(jax.vmap(functools.partial(motor_torque, h=float(model.opt.timestep),
                                                     joint_range=joint_range),
                                   in_axes=(0, 0, 0, 0, 0, None)))
-        fields = ("qpos", "qvel", "qacc_warmstart")
+        fields = ("qpos", "qvel", "qacc_warmstart", "qfrc_constraint")
         out = {k: np.zeros((num_steps + 1, num_envs, model.nv)) for k in fields}
         stats = {k: np.zeros((num_steps, num_envs), np.int32)
                  for k in ("ncon", "nl", "newton_iterations", "ls_evals")}
@@ -230,7 +232,9 @@ def c_rollout(model: mujoco.MjModel, start: PhysicsState, actions: np.ndarray) -
                 for i, data in enumerate(datas):
                     mujoco.mj_step1(model, data)
                     mujoco.mj_fullM(model, data, mass[i])
-                bias = np.asarray([d.qfrc_passive - d.qfrc_bias for d in datas])
+                # the previous substep's constraint forces count as known, as in `Physics.substep`
+                bias = np.asarray([d.qfrc_passive - d.qfrc_bias + d.qfrc_constraint
+                                   for d in datas])
                 qvel = np.asarray([d.qvel for d in datas])
                 qpos = np.asarray([d.qpos for d in datas])
                 tau = np.asarray(torque(mass, np.linalg.solve(mass, bias[..., None])[..., 0],
@@ -290,10 +294,11 @@ def counted_step(physics: Physics, state: PhysicsState, target: jax.Array
         state, niter, engaged = carry
         data = physics.data(state).replace(qacc_warmstart=state.qacc_warmstart)
         with mock.patch.object(mjx, "solve", counting_solve):
-            data = physics.substep(data, target)
+            data = physics.substep(data, target, state.qfrc_constraint)
         limit = jnp.any((state.qpos < low) | (state.qpos > high))
         kind = jnp.where(jnp.any(data._impl.contact.dist < 0), 2, jnp.where(limit, 1, 0))
-        state = PhysicsState(qpos=data.qpos, qvel=data.qvel, qacc_warmstart=data.qacc_warmstart)
+        state = PhysicsState(qpos=data.qpos, qvel=data.qvel, qacc_warmstart=data.qacc_warmstart,
+                             qfrc_constraint=data.qfrc_constraint)
         return state, niter.at[i].set(data._impl.solver_niter), engaged.at[i].set(kind)
 
     zeros = jnp.zeros(physics.substeps, jnp.int32)
@@ -340,7 +345,8 @@ def counting_step_identical(plain: dict, counted: dict, ref: dict, actions: np.n
         for t in times:
             state = PhysicsState(qpos=ref["qpos"][t].astype(np.float32),
                                  qvel=ref["qvel"][t].astype(np.float32),
-                                 qacc_warmstart=ref["qacc_warmstart"][t].astype(np.float32))
+                                 qacc_warmstart=ref["qacc_warmstart"][t].astype(np.float32),
+                                 qfrc_constraint=ref["qfrc_constraint"][t].astype(np.float32))
             action = jnp.asarray(actions[t])
             a = np.asarray(plain[name](state, action).qpos)
             b = np.asarray(counted[name](state, action)[0].qpos)
@@ -414,7 +420,8 @@ def one_step_from_c(steps: dict, ref: dict, actions: np.ndarray, times: np.ndarr
             state = PhysicsState(
                 qpos=np.nextafter(qpos, np.float32(np.inf)) if nudge else qpos,
                 qvel=ref["qvel"][t].astype(np.float32),
-                qacc_warmstart=ref["qacc_warmstart"][t].astype(np.float32))
+                qacc_warmstart=ref["qacc_warmstart"][t].astype(np.float32),
+                qfrc_constraint=ref["qfrc_constraint"][t].astype(np.float32))
             qs.append(np.asarray(step(state, jnp.asarray(actions[t])).qpos))
         after[name] = np.stack(qs)
         err = np.abs(after[name] - ref["qpos"][times + 1]).max(-1)
@@ -465,7 +472,8 @@ def solver_vs_c(models: dict[str, mujoco.MjModel], baseline: str, c_reference: m
     actions = saturated_actions(jax.random.key(4), num_steps, num_envs)
     neutral = np.tile(NEUTRAL_QPOS, (num_envs, 1)).astype(np.float32)
     start = PhysicsState(qpos=neutral, qvel=np.zeros_like(neutral),
-                         qacc_warmstart=np.zeros_like(neutral))
+                         qacc_warmstart=np.zeros_like(neutral),
+                         qfrc_constraint=np.zeros_like(neutral))
     t0 = time.perf_counter()
     ref = c_rollout(c_reference, start, actions)
     log(f"vs C: C rollout {time.perf_counter() - t0:.0f} s")
@@ -558,7 +566,8 @@ def iterations_vs_c(num_envs: int, num_steps: int, iterations: list[int],
                                             minval=-1.0, maxval=1.0))
     neutral = np.tile(NEUTRAL_QPOS, (num_envs, 1)).astype(np.float32)
     start = PhysicsState(qpos=neutral, qvel=np.zeros_like(neutral),
-                         qacc_warmstart=np.zeros_like(neutral))
+                         qacc_warmstart=np.zeros_like(neutral),
+                         qfrc_constraint=np.zeros_like(neutral))
     run = mjx_rollout(counting_env_step(physics), start, actions)
     out["random_actions"] = iteration_summary(run["newton_iterations"], run["engaged"])
     log(f"iter_vs_c: random actions: {json.dumps(out['random_actions'])}")

@@ -240,8 +240,8 @@ def main() -> None:
                 "2+ 4-": [0, 1, 0, -1, 0, 0, 0], "2+ 6-": [0, 1, 0, 0, 0, -1, 0],
                 "4+ (no contact)": [0, 0, 0, 1, 0, 0, 0]}
     press = np.stack([np.tile(v, (60, 1)) for v in pressing.values()]).astype(np.float32)
-    press_gap = np.abs(pybullet_rollouts(press, table=True)
-                       - our_rollouts(press, table=True)).max(axis=(1, 2))
+    press_theirs = pybullet_rollouts(press, table=True)
+    press_gap = np.abs(press_theirs - our_rollouts(press, table=True)).max(axis=(1, 2))
     print("the table: constant actions for 60 steps, largest joint difference: "
           + ", ".join(f"joints {k} {g:.3f}" for k, g in zip(pressing, press_gap)) + " rad")
 
@@ -277,6 +277,7 @@ def main() -> None:
         np.savez_compressed(REFERENCE, actions=actions, qpos=theirs, ik_qpos=ik_qpos,
                             ik_targets=ik_targets, ik_grasp_target=their_points, ik_joints=their_ik,
                             saturated_actions=saturated, saturated_qpos=sat_theirs,
+                            press_actions=press, press_qpos=press_theirs,
                             dist_qpos=dist_qpos, dist_centres=dist_centres,
                             dist_pybullet=their_dist,
                             pybullet_version=str(pb_module.getAPIVersion()))

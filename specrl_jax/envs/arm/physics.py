@@ -4,10 +4,13 @@ PyBullet's POSITION_CONTROL (the original's) is a velocity-level motor constrain
 substep it asks for joint velocity `v* = 50 (q_target - q)` (position gain 0.1 over h = 1/500 s),
 with the impulse of each joint limited to `force_limit * h`, and solves all joints together with
 the joint-limit constraints, which let a joint move at most to its limit within the substep. Here
-each substep takes MuJoCo's smooth dynamics, finds the joint forces of the motor and limit rows
-together (projected Gauss-Seidel in the inverse mass matrix, as Bullet's sequential-impulse
-solver), applies them, then lets MuJoCo solve the table/floor contacts and integrate
-(semi-implicit Euler, as Bullet). MuJoCo's own soft joint limits stay in the model as a backstop;
+each substep takes MuJoCo's smooth dynamics plus the contact forces of the previous substep,
+finds the joint forces of the motor and limit rows together (projected Gauss-Seidel in the
+inverse mass matrix, as Bullet's sequential-impulse solver), applies them, then lets MuJoCo solve
+the table/floor contacts and integrate (semi-implicit Euler, as Bullet). Bullet solves the motor
+and contact rows in one problem; counting the last substep's contact forces in the motor solve
+is one Gauss-Seidel pass between the two, lagged by a substep, so that a motor holds against a
+contact as it does in Bullet. MuJoCo's own soft joint limits stay in the model as a backstop;
 they act only where a contact pushes a joint past its limit.
 """
 
@@ -39,11 +42,14 @@ class PhysicsState:
         qpos: float32[7] joint angles, rad.
         qvel: float32[7] joint velocities, rad/s.
         qacc_warmstart: float32[7] MuJoCo's constraint-solver warm start.
+        qfrc_constraint: float32[7] the joint forces of the last substep's contacts (and
+            MuJoCo's limit backstop), N m, which the next substep's motor solve sees.
     """
 
     qpos: jax.Array
     qvel: jax.Array
     qacc_warmstart: jax.Array
+    qfrc_constraint: jax.Array
 
 
 def spd_inverse(mass: jax.Array) -> jax.Array:
@@ -129,7 +135,8 @@ class Physics:
 
     def init(self, qpos: jax.Array) -> PhysicsState:
         zeros = jnp.zeros(self.mj_model.nv, jnp.float32)
-        return PhysicsState(qpos=jnp.asarray(qpos, jnp.float32), qvel=zeros, qacc_warmstart=zeros)
+        return PhysicsState(qpos=jnp.asarray(qpos, jnp.float32), qvel=zeros, qacc_warmstart=zeros,
+                            qfrc_constraint=zeros)
 
     def data(self, state: PhysicsState) -> mjx.Data:
         """MJX data with the kinematics (body, joint, geom and site frames) at `state`."""
@@ -146,13 +153,20 @@ class Physics:
         data = mjx.make_constraint(m, self.collision.collide(m, data))
         return mjx.transmission(m, data)
 
-    def substep(self, data: mjx.Data, target: jax.Array) -> mjx.Data:
-        """One physics step of h = model timestep toward joint targets `target` ([7], rad)."""
+    def substep(self, data: mjx.Data, target: jax.Array,
+                qfrc_constraint: jax.Array | None = None) -> mjx.Data:
+        """One physics step of h = model timestep toward joint targets `target` ([7], rad).
+        `qfrc_constraint` ([7], N m): the previous substep's constraint forces, which the motor
+        solve counts as known (Bullet solves motor and contact rows together; this lags the
+        contacts by one substep); None: none."""
         m = self.model
         data = mjx.fwd_velocity(m, self.position_stage(data))
         mass = mjx.full_m(m, data)
         inverse = spd_inverse(mass)
-        free_accel = inverse @ (data.qfrc_passive - data.qfrc_bias)
+        known = data.qfrc_passive - data.qfrc_bias
+        if qfrc_constraint is not None:
+            known = known + qfrc_constraint
+        free_accel = inverse @ known
         h = float(self.mj_model.opt.timestep)
         tau = motor_torque(mass, free_accel, data.qvel, data.qpos, target,
                            jnp.asarray(self.force_limit), h, inverse=inverse,
@@ -169,11 +183,12 @@ class Physics:
         """`substeps` physics steps toward `target` (float[7], rad), held through the step."""
 
         def substep(_, carry: PhysicsState) -> PhysicsState:
-            # a substep depends on these three only: the loop carries them, not all of mjx.Data
+            # a substep depends on these four only: the loop carries them, not all of mjx.Data
             data = self._template.replace(
                 qpos=carry.qpos, qvel=carry.qvel, qacc_warmstart=carry.qacc_warmstart)
-            data = self.substep(data, target)
-            return PhysicsState(qpos=data.qpos, qvel=data.qvel, qacc_warmstart=data.qacc_warmstart)
+            data = self.substep(data, target, carry.qfrc_constraint)
+            return PhysicsState(qpos=data.qpos, qvel=data.qvel, qacc_warmstart=data.qacc_warmstart,
+                                qfrc_constraint=data.qfrc_constraint)
 
         # MJX's own Cholesky factorisations (mass matrix, Newton Hessian), written out too
         with small_linalg.small_cholesky():
