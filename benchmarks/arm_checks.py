@@ -201,9 +201,9 @@ def c_rollout(model: mujoco.MjModel, start: PhysicsState, actions: np.ndarray) -
         actions: float[T, B, 7].
 
     Returns `qpos`, `qvel`, `qacc_warmstart`, `qfrc_constraint` float64[T + 1, B, 7] and, per
-    env step
-    int32[T, B], the most contacts (`ncon`), joint-limit rows (`nl`), Newton iterations and
-    line-search cost evaluations of one substep (`ls_evals`: the most in one Newton iteration).
+    env step int32[T, B], the most contacts (`ncon`), joint-limit rows (`nl`), Newton
+    iterations and line-search cost evaluations of one substep (`ls_evals`: the most in one
+    Newton iteration).
     """
     num_steps, num_envs = actions.shape[:2]
     datas = [mujoco.MjData(model) for _ in range(num_envs)]
@@ -614,14 +614,14 @@ def compile_pieces(num_envs: int, num_steps: int, pieces: list[str] | None = Non
         run = env_throughput.make_rollout(batched, params, num_steps)
         return run, (key, state)
 
-    def substep(data, target):  # as inside `physics.step`: written-out Cholesky factorisations
-        with small_linalg.small_cholesky():
-            return physics.substep(data, target)
+    def substep(data, target, qfrc_constraint):
+        with small_linalg.small_cholesky():  # as inside `physics.step`: written-out Cholesky
+            return physics.substep(data, target, qfrc_constraint)
 
     data = jax.jit(jax.vmap(physics.data))(phys)
     table = {
         "kinematics": lambda: (jax.vmap(physics.data), (phys,)),
-        "substep": lambda: (jax.vmap(substep), (data, phys.qpos)),
+        "substep": lambda: (jax.vmap(substep), (data, phys.qpos, phys.qfrc_constraint)),
         "physics_step": lambda: (jax.vmap(physics.step), (phys, phys.qpos)),
         "observe_mode0": lambda: (jax.vmap(env0._observe), (states(env0),)),
         "observe_mode1": lambda: (jax.vmap(env1._observe), (states(env1),)),

@@ -91,25 +91,36 @@ def pybullet_rollouts(actions: np.ndarray, table: bool = False) -> np.ndarray:
     return qpos
 
 
-def pybullet_ik(qpos: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """PyBullet's grasp-target position float64[K, 3] (FK) at joint angles `qpos` float[K, 7],
-    and its `calculateInverseKinematics` joint angles float64[K, 7] from there toward `targets`
-    float[K, 3] with the gripper down (the original's end-effector control, no optional
-    arguments)."""
+def pybullet_grasp_target(qpos: np.ndarray) -> np.ndarray:
+    """float64[K, 3]: PyBullet's grasp-target position (FK) at joint angles `qpos` float[K, 7]."""
     pybullet, robot = pybullet_arm()
-    points, solved = [], []
-    for q, target in zip(qpos, targets):
-        for j, angle in zip(ARM_JOINTS + FINGER_JOINTS, list(q) + [0.0, 0.0]):
+    points = []
+    for q in qpos:
+        for j, angle in zip(ARM_JOINTS, q):
             pybullet.resetJointState(robot, j, angle, 0.0)
         points.append(pybullet.getLinkState(robot, GRASP_TARGET, computeForwardKinematics=True)[4])
+    pybullet.disconnect()
+    return np.asarray(points)
+
+
+def pybullet_ik(qpos: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """float64[K, 7]: PyBullet's `calculateInverseKinematics` joint angles from `qpos`
+    float[K, 7] toward `targets` float[K, 3] with the gripper down (the original's end-effector
+    control, no optional arguments)."""
+    pybullet, robot = pybullet_arm()
+    solved = []
+    for q, target in zip(qpos, targets):
+        for j, angle in zip(ARM_JOINTS, q):
+            pybullet.resetJointState(robot, j, angle, 0.0)
         solved.append(pybullet.calculateInverseKinematics(robot, GRASP_TARGET, list(target),
                                                           [1.0, 0.0, 0.0, 0.0])[:7])
     pybullet.disconnect()
-    return np.asarray(points), np.asarray(solved)
+    return np.asarray(solved)
 
 
 def our_ik(qpos: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """`pybullet_ik`'s figures from our kinematics and IK (float32, jitted)."""
+    """The grasp target float64[K, 3] at `qpos` and the IK's joint angles float64[K, 7] toward
+    `targets`, from our kinematics and IK (float32, jitted)."""
     ik = EndEffectorIK(arm_model.load_model(table_contacts=False))
     q, t = jnp.asarray(qpos, jnp.float32), jnp.asarray(targets, jnp.float32)
     points = jax.jit(jax.vmap(lambda x: ik.pose(x)[0]))(q)
@@ -248,9 +259,9 @@ def main() -> None:
     rng = np.random.default_rng(args.seed)
     ik_qpos = np.asarray(arm_model.NEUTRAL_QPOS) + rng.uniform(-0.3, 0.3, (32, 7))
     ik_qpos[0] = arm_model.NEUTRAL_QPOS
-    start_points, _ = pybullet_ik(ik_qpos, np.zeros((32, 3)))  # where each grasp target is
-    ik_targets = start_points + 0.05 * rng.uniform(-1, 1, (32, 3))
-    their_points, their_ik = pybullet_ik(ik_qpos, ik_targets)
+    their_points = pybullet_grasp_target(ik_qpos)
+    ik_targets = their_points + 0.05 * rng.uniform(-1, 1, (32, 3))
+    their_ik = pybullet_ik(ik_qpos, ik_targets)
     our_points, our_solved = our_ik(ik_qpos, ik_targets)
     fk_gap, ik_gap = np.abs(their_points - our_points).max(), np.abs(their_ik - our_solved).max()
     print(f"32 joint configurations (neutral +- 0.3 rad), targets 5 cm away: grasp-target FK "
@@ -258,8 +269,7 @@ def main() -> None:
 
     # mode-1 distances: 8 spheres (the benchmark's radius) placed near random link points
     dist_qpos = np.asarray(arm_model.NEUTRAL_QPOS) + rng.uniform(-0.4, 0.4, (24, 7))
-    anchors, _ = pybullet_ik(dist_qpos, np.zeros((24, 3)))  # the grasp target of each pose
-    dist_centres = anchors[:, None] + rng.normal(0, 0.12, (24, 8, 3))
+    dist_centres = pybullet_grasp_target(dist_qpos)[:, None] + rng.normal(0, 0.12, (24, 8, 3))
     their_dist = pybullet_link_distances(dist_qpos, dist_centres, 0.06)
     our_dist = our_link_distances(dist_qpos, dist_centres)
     near = np.abs(their_dist) < 0.1

@@ -213,43 +213,6 @@ def test_one_env_step_with_contacts_and_limits_matches_mujoco_c_at_the_newton_ca
     _assert_as_near_c_as_measured(after)
 
 
-def test_tracking_gains_match_the_original_under_random_actions(physics):
-    """Per-joint least squares of dq on 0.05 a_t and 0.05 a_{t-1} under uniform random actions
-    (the reference measured gains 0.61, 0.50, 0.82, 0.82, 0.86, 0.877, 0.878 and lags 0.21 and
-    0.12 on joints 1 and 2, about 0 elsewhere), and the arm holds still under zero action.
-    A Python loop over one jitted step (a scanned rollout compiles for minutes on a CPU)."""
-    episodes, steps = 2, 100
-    step = jax.jit(lambda s, a: physics.step(s, s.qpos + 0.05 * a))
-    neutral = jnp.asarray(arm_model.NEUTRAL_QPOS, jnp.float32)
-    state = physics.init(neutral)
-    for _ in range(10):
-        state = step(state, jnp.zeros(7))
-    assert np.abs(np.asarray(state.qpos - neutral)).max() < 2e-3  # holds against gravity
-    rng = np.random.default_rng(0)
-    actions, dq = [], []
-    for _ in range(episodes):
-        state = physics.init(neutral)
-        for _ in range(steps):
-            action = rng.uniform(-1, 1, 7).astype(np.float32)
-            new = step(state, jnp.asarray(action))
-            actions.append(0.05 * action)
-            dq.append(np.asarray(new.qpos - state.qpos))
-            state = new
-    a = np.asarray(actions).reshape(episodes, steps, 7).transpose(1, 0, 2)
-    dq = np.asarray(dq).reshape(episodes, steps, 7).transpose(1, 0, 2)
-    assert np.isfinite(dq).all()
-    gains, lags = [], []
-    for j in range(7):
-        x = np.stack([a[1:, :, j].ravel(), a[:-1, :, j].ravel()], 1)
-        g, lag = np.linalg.lstsq(x, dq[1:, :, j].ravel(), rcond=None)[0]
-        gains.append(g)
-        lags.append(lag)
-    assert np.abs(np.array(gains) - [0.61, 0.50, 0.82, 0.82, 0.86, 0.877, 0.878]).max() < 0.05, gains
-    # joints 1 and 2 lag (torque-limited); how much depends on the sample (PyBullet itself gives
-    # 0.03-0.19 and 0.12-0.29): the test below holds the lags to PyBullet's on the same actions
-    assert abs(lags[0] - 0.21) < 0.1 and 0.05 < lags[1] < 0.4 and np.abs(lags[2:]).max() < 0.05, lags
-
-
 PYBULLET_ROLLOUTS = Path(__file__).parent / "data" / "arm_pybullet_rollouts.npz"
 
 
@@ -266,6 +229,32 @@ def _rollouts_from_neutral(physics, actions):
     return np.stack(qpos, 1)
 
 
+def _gains_and_lags(actions, qpos):
+    """float[7, 2]: per joint, the least-squares (gain, lag) of dq_t on 0.05 a_t and
+    0.05 a_{t-1}, from `actions` float[E, T, 7] and the joint angles float[E, T+1, 7]."""
+    commanded, moved = 0.05 * actions, np.diff(qpos, axis=1)
+    return np.array([np.linalg.lstsq(np.stack([commanded[:, 1:, j].ravel(),
+                                               commanded[:, :-1, j].ravel()], 1),
+                                     moved[:, 1:, j].ravel(), rcond=None)[0] for j in range(7)])
+
+
+def test_tracking_gains_match_the_original_under_random_actions(physics):
+    """Per-joint least squares of dq on 0.05 a_t and 0.05 a_{t-1} under uniform random actions
+    (the reference measured gains 0.61, 0.50, 0.82, 0.82, 0.86, 0.877, 0.878 and lags 0.21 and
+    0.12 on joints 1 and 2, about 0 elsewhere), and the arm holds still under zero action.
+    A Python loop over one jitted step (a scanned rollout compiles for minutes on a CPU)."""
+    held = _rollouts_from_neutral(physics, np.zeros((1, 10, 7), np.float32))
+    assert np.abs(held[0, -1] - arm_model.NEUTRAL_QPOS).max() < 2e-3  # holds against gravity
+    actions = np.random.default_rng(0).uniform(-1, 1, (2, 100, 7)).astype(np.float32)
+    qpos = _rollouts_from_neutral(physics, actions)
+    assert np.isfinite(qpos).all()
+    gains, lags = _gains_and_lags(actions, qpos).T
+    assert np.abs(np.array(gains) - [0.61, 0.50, 0.82, 0.82, 0.86, 0.877, 0.878]).max() < 0.05, gains
+    # joints 1 and 2 lag (torque-limited); how much depends on the sample (PyBullet itself gives
+    # 0.03-0.19 and 0.12-0.29): the test below holds the lags to PyBullet's on the same actions
+    assert abs(lags[0] - 0.21) < 0.1 and 0.05 < lags[1] < 0.4 and np.abs(lags[2:]).max() < 0.05, lags
+
+
 def test_motor_matches_pybullet_on_the_same_actions(physics):
     """PyBullet's own arm (the original's engine; its rollouts written by
     `benchmarks/arm_vs_pybullet.py --write-reference`: 4 episodes x 100 uniform random actions
@@ -278,15 +267,8 @@ def test_motor_matches_pybullet_on_the_same_actions(physics):
     assert np.abs(theirs[:, 0] - ours[:, 0]).max() < 1e-6  # both start at the neutral pose
     gap = np.abs(theirs - ours)
     assert gap[:, :11].max() < 3e-3 and gap.max() < 2e-2, gap.max(axis=(0, 2))
-
-    def fit(qpos):
-        commanded, moved = 0.05 * actions, np.diff(qpos, axis=1)
-        return np.array([np.linalg.lstsq(np.stack([commanded[:, 1:, j].ravel(),
-                                                   commanded[:, :-1, j].ravel()], 1),
-                                         moved[:, 1:, j].ravel(), rcond=None)[0]
-                         for j in range(7)])
-
-    assert np.abs(fit(ours) - fit(theirs)).max() < 0.01, (fit(ours), fit(theirs))
+    fits = _gains_and_lags(actions, ours), _gains_and_lags(actions, theirs)
+    assert np.abs(fits[0] - fits[1]).max() < 0.01, fits
 
 
 def test_joint_limits_hold_with_the_motor_as_in_pybullet(physics):

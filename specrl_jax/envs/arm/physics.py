@@ -74,7 +74,7 @@ def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: 
         force_limit: float[N] per-joint motor torque bound, N m.
         h: the substep, s.
         inverse: float[N, N] the inverse of `mass`, if the caller has it.
-        joint_range: float[N, 2] lower and upper joint limits, rad (None: no limit rows).
+        joint_range: float[N, 2] lower and upper joint limits, rad (None: unlimited).
 
     Returns the motor torques `tau`, `|tau_i| <= force_limit_i`, such that each unsaturated joint
     reaches `v* = MOTOR_RATE (target - q)` after the substep (given the saturated ones), plus the
@@ -88,22 +88,17 @@ def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: 
     diag = jnp.diagonal(inverse)
     num = tau.shape[0]
 
-    def motor_rows(tau, limit):
-        for i in range(num):  # rows in order, as Bullet's sequential impulses
-            residual = want[i] - inverse[i] @ (tau + limit)
-            tau = tau.at[i].set(jnp.clip(tau[i] + residual / diag[i], -force_limit[i],
-                                         force_limit[i]))
-        return tau
-
-    if joint_range is None:
-        return jax.lax.fori_loop(0, sweeps, lambda _, t: motor_rows(t, jnp.zeros_like(t)), tau)
-
+    if joint_range is None:  # an infinite range: the limit rows never act
+        joint_range = jnp.stack([jnp.full(num, -jnp.inf), jnp.full(num, jnp.inf)], axis=1)
     top = speed_to_accel((joint_range[:, 1] - qpos) / h)
     bottom = speed_to_accel((joint_range[:, 0] - qpos) / h)
 
     def sweep(_, carry):
         tau, down, up = carry  # motor torques, upper-limit forces <= 0, lower-limit forces >= 0
-        tau = motor_rows(tau, down + up)
+        for i in range(num):  # rows in order, as Bullet's sequential impulses
+            residual = want[i] - inverse[i] @ (tau + down + up)
+            tau = tau.at[i].set(jnp.clip(tau[i] + residual / diag[i], -force_limit[i],
+                                         force_limit[i]))
         for i in range(num):
             accel = inverse[i] @ (tau + down + up)
             new_down = jnp.minimum(down[i] + (top[i] - accel) / diag[i], 0.0)
@@ -126,8 +121,8 @@ class Physics:
         self.substeps = substeps
         self.force_limit = np.asarray(force_limit, np.float32)
         arm = slice(0, len(self.force_limit))
-        unlimited = np.where(model.jnt_limited[arm], 0.0, np.inf)[:, None] * np.array([-1.0, 1.0])
-        self.joint_range = (model.jnt_range[arm] + unlimited).astype(np.float32)
+        self.joint_range = np.where(model.jnt_limited[arm, None], model.jnt_range[arm],
+                                    [-np.inf, np.inf]).astype(np.float32)
         self._template = mjx.make_data(self.model)
         self.kinematics = ChainKinematics(model)
         self.collision = Collision(model, self.model)
@@ -153,20 +148,16 @@ class Physics:
         data = mjx.make_constraint(m, self.collision.collide(m, data))
         return mjx.transmission(m, data)
 
-    def substep(self, data: mjx.Data, target: jax.Array,
-                qfrc_constraint: jax.Array | None = None) -> mjx.Data:
+    def substep(self, data: mjx.Data, target: jax.Array, qfrc_constraint: jax.Array) -> mjx.Data:
         """One physics step of h = model timestep toward joint targets `target` ([7], rad).
         `qfrc_constraint` ([7], N m): the previous substep's constraint forces, which the motor
         solve counts as known (Bullet solves motor and contact rows together; this lags the
-        contacts by one substep); None: none."""
+        contacts by one substep)."""
         m = self.model
         data = mjx.fwd_velocity(m, self.position_stage(data))
         mass = mjx.full_m(m, data)
         inverse = spd_inverse(mass)
-        known = data.qfrc_passive - data.qfrc_bias
-        if qfrc_constraint is not None:
-            known = known + qfrc_constraint
-        free_accel = inverse @ known
+        free_accel = inverse @ (data.qfrc_passive - data.qfrc_bias + qfrc_constraint)
         h = float(self.mj_model.opt.timestep)
         tau = motor_torque(mass, free_accel, data.qvel, data.qpos, target,
                            jnp.asarray(self.force_limit), h, inverse=inverse,
