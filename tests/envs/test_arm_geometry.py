@@ -131,8 +131,9 @@ def test_link_sphere_distances_match_pybullet_less_its_collision_margin(env):
 
     def distances(qpos, centres):
         pose = env.poses(_state(env, qpos, centres))
+        radius = jnp.asarray(env.region_radius)
         return sensors.link_sphere_distances(pose["link_pos"], pose["link_mat"], env._triangles,
-                                             jnp.asarray(centres), jnp.asarray(env.region_radius))[0]
+                                             jnp.asarray(centres), radius)[0]
 
     ours = np.asarray(jax.jit(jax.vmap(distances))(
         jnp.asarray(reference["dist_qpos"], jnp.float32),
