@@ -38,7 +38,8 @@ import specrl_jax
 from specrl_jax.envs.arm import model as arm_model
 from specrl_jax.envs.arm.env import ACTION_SCALE
 from specrl_jax.envs.arm.model import NEUTRAL_QPOS
-from specrl_jax.envs.arm.physics import SUBSTEPS, Physics, PhysicsState, motor_torque
+from specrl_jax.envs.arm.physics import (SOLVE_CAPACITIES, SUBSTEPS, Physics, PhysicsState,
+                                         motor_torque)
 from specrl_jax.envs.wrappers import batch as batch_env
 from specrl_jax.envs.zone import small_linalg
 from specrl_jax.envs.zone.mjx_import import mjx
@@ -181,6 +182,59 @@ def settings_timing(models: dict[str, mujoco.MjModel], baseline: str, num_envs: 
     return out
 
 
+def capacity_timing(num_envs: int, num_steps: int, capacities: list[float | None]) -> dict:
+    """The physics step with the collision and solver gathered for the arms that need them,
+    into one sub-batch size per run (`Physics(solve_capacities=(c,))`; None: every arm, MJX's
+    way; "default": the model's `SOLVE_CAPACITIES`) under uniform random and
+    saturated actions from the neutral pose: ms per env step after compile, the share of arms
+    that needed the solver at each step (`ContactReach`), and the largest joint-angle difference
+    against `None` one env step from every visited state (rad)."""
+    model = arm_model.load_model()
+    out = {}
+    for kind in ("uniform", "saturated"):
+        key = jax.random.key(4)
+        actions = (saturated_actions(key, num_steps, num_envs) if kind == "saturated" else
+                   np.asarray(jax.random.uniform(key, (num_steps, num_envs, 7), minval=-1,
+                                                 maxval=1)))
+        tiers = lambda c: SOLVE_CAPACITIES if c == "default" else None if c is None else (c,)
+        steps = {c: env_step(Physics(model, arm_model.FORCE_LIMITS, solve_capacities=tiers(c)))
+                 for c in capacities}
+        probe = Physics(model, arm_model.FORCE_LIMITS)
+        needs = jax.jit(jax.vmap(lambda s: probe._needs_solver(probe.data(s))))
+        start_state = jax.vmap(probe.init)(
+            jnp.tile(jnp.asarray(NEUTRAL_QPOS, jnp.float32), (num_envs, 1)))
+        rows, visited = {}, []
+        for capacity, step in steps.items():
+            start = time.perf_counter()
+            jax.block_until_ready(step(start_state, actions[0]))
+            compile_s = time.perf_counter() - start
+            state, share = start_state, []
+            start = time.perf_counter()
+            for t in range(num_steps):
+                if capacity is None:
+                    visited.append(state)
+                state = step(state, actions[t])
+            jax.block_until_ready(state)
+            row = {"ms_per_env_step": 1000 * (time.perf_counter() - start) / num_steps,
+                   "first_call_s": compile_s}
+            if capacity is None:
+                share = [float(jnp.mean(needs(s))) for s in visited]
+                row["need_share_by_step"] = [round(x, 3) for x in share]
+            rows[str(capacity)] = row
+            log(f"capacity {kind} {capacity}: {json.dumps(row)}")
+        states = jax.tree.map(lambda *x: jnp.concatenate(x), *visited)
+        flat = jnp.asarray(actions.reshape(-1, 7))
+        reference = np.asarray(steps[None](states, flat).qpos)
+        for capacity, step in steps.items():
+            if capacity is not None:
+                diff = np.abs(np.asarray(step(states, flat).qpos) - reference).max(1)
+                rows[str(capacity)].update(states=int(diff.size), max_abs_dq=float(diff.max()),
+                                           p999_abs_dq=float(np.quantile(diff, 0.999)))
+                log(f"capacity {kind} {capacity} against None: {json.dumps(rows[str(capacity)])}")
+        out[kind] = rows
+    return out
+
+
 def saturated_actions(key: jax.Array, num_steps: int, num_envs: int) -> np.ndarray:
     """float32[T, B, 7] actions of +-1; each arm and joint draws its probability of +1 from
     U(0.1, 0.9), so arms drift (into joint limits, the table and the floor) as well as jitter."""
@@ -293,13 +347,15 @@ def counted_step(physics: Physics, state: PhysicsState, target: jax.Array
     def substep(i, carry):
         state, niter, engaged = carry
         data = physics.data(state).replace(qacc_warmstart=state.qacc_warmstart)
+        data = physics.accelerate(data, target, state.qfrc_constraint)
         with mock.patch.object(mjx, "solve", counting_solve):
-            data = physics.substep(data, target, state.qfrc_constraint)
+            solved = physics.solved(data)
+        data = mjx.euler(physics.model, solved)
         limit = jnp.any((state.qpos < low) | (state.qpos > high))
-        kind = jnp.where(jnp.any(data._impl.contact.dist < 0), 2, jnp.where(limit, 1, 0))
+        kind = jnp.where(jnp.any(solved._impl.contact.dist < 0), 2, jnp.where(limit, 1, 0))
         state = PhysicsState(qpos=data.qpos, qvel=data.qvel, qacc_warmstart=data.qacc_warmstart,
                              qfrc_constraint=data.qfrc_constraint)
-        return state, niter.at[i].set(data._impl.solver_niter), engaged.at[i].set(kind)
+        return state, niter.at[i].set(solved._impl.solver_niter), engaged.at[i].set(kind)
 
     zeros = jnp.zeros(physics.substeps, jnp.int32)
     with small_linalg.small_cholesky():
@@ -661,7 +717,7 @@ def main() -> None:
     parser.add_argument("--gain-steps", type=int, default=400)
     parser.add_argument("--parts", nargs="+",
                         choices=("gains", "nan", "compile", "linesearch", "ls_vs_c",
-                                 "iterations", "iter_vs_c"),
+                                 "iterations", "iter_vs_c", "capacity"),
                         default=("gains", "nan"))
     parser.add_argument("--ls-batch", type=int, default=4096, help="linesearch, iterations")
     parser.add_argument("--ls-steps", type=int, default=20, help="linesearch, iterations")
@@ -670,6 +726,8 @@ def main() -> None:
                         help="iterations, iter_vs_c: Newton iteration caps (at tolerance 1e-8)")
     parser.add_argument("--tolerances", type=float, nargs="+", default=[1e-6, 1e-5],
                         help="iterations, iter_vs_c: Newton tolerances (at 100 iterations)")
+    parser.add_argument("--capacities", nargs="+", default=["default", "0.25"],
+                        help="capacity: sub-batch shares to time against None (every arm)")
     parser.add_argument("--c-batch", type=int, default=256)
     parser.add_argument("--c-steps", type=int, default=150)
     parser.add_argument("--c-stride", type=int, default=5,
@@ -720,6 +778,11 @@ def main() -> None:
         log(f"iter_vs_c: {args.c_batch} arms x {args.c_steps} saturated steps against MuJoCo C")
         results["iter_vs_c"] = iterations_vs_c(args.c_batch, args.c_steps, args.iterations,
                                                args.tolerances, args.c_stride)
+        save()
+    if "capacity" in args.parts:
+        log(f"capacity: {args.ls_batch} arms x {args.ls_steps} steps")
+        shares = [c if c == "default" else float(c) for c in args.capacities]
+        results["capacity"] = capacity_timing(args.ls_batch, args.ls_steps, [None, *shares])
         save()
     if "nan" in args.parts:
         for env_id in ("PandaLTLReach0Joints-v0", "PandaLTLReach1Joints-v0"):

@@ -119,4 +119,64 @@ class Collision:
         return d.tree_replace({"_impl.contact": contact})
 
 
-__all__ = ["Collision", "pad_convex"]
+class ContactReach:
+    """Which arms may have an active constraint row, tested cheaply before MJX's collision.
+
+    A mesh is at least as far from a plane as its nearest hull vertex, and at least as far from
+    a box as its vertices lie beyond any one face plane of the box (a separating plane); a pair
+    can be within its margin only when that bound is (to `slack`) within it. The vertices are
+    the ones MJX's colliders use (`mesh_convex`). Joint-limit rows are active exactly where
+    MuJoCo's are (`past_limit`).
+    """
+
+    def __init__(self, mj_model: mujoco.MjModel, model: mjx.Model, slack: float = 1e-3):
+        m = mj_model
+        kinds = {int(mujoco.mjtGeom.mjGEOM_PLANE), int(mujoco.mjtGeom.mjGEOM_BOX)}
+        first, second = m.pair_geom1.copy(), m.pair_geom2.copy()
+        swap = m.geom_type[first] == mujoco.mjtGeom.mjGEOM_MESH
+        first[swap], second[swap] = second[swap], first[swap]
+        if not (set(m.geom_type[first].tolist()) <= kinds
+                and np.all(m.geom_type[second] == mujoco.mjtGeom.mjGEOM_MESH)):
+            raise ValueError("ContactReach takes plane-mesh and box-mesh contact pairs only")
+        if sum(len(pairs) for pairs in collision_driver._geom_groups(m).values()) != m.npair:
+            raise ValueError("ContactReach needs every contact in an explicit pair")
+        hulls = [np.asarray(model._impl.mesh_convex[m.geom_dataid[g]].vert) for g in second]
+        if len({h.shape for h in hulls}) > 1:
+            raise ValueError("ContactReach needs hulls with one vertex count (set maxhullvert)")
+        self.mesh_geom, self.other_geom = second, first
+        # [P, V, 3], mesh frames
+        self.vertices = np.stack(hulls).astype(np.float32) if hulls else np.zeros((0, 1, 3))
+        self.is_plane = m.geom_type[first] == mujoco.mjtGeom.mjGEOM_PLANE
+        self.half_size = m.geom_size[first].astype(np.float32)
+        self.reach = (m.pair_margin - m.pair_gap + slack).astype(np.float32)
+        self.limited = m.jnt_limited.astype(bool)
+        self.qpos_index = m.jnt_qposadr
+        self.jnt_range = m.jnt_range.astype(np.float32)
+        self.jnt_margin = m.jnt_margin.astype(np.float32)
+
+    def gaps(self, data: mjx.Data) -> jax.Array:
+        """float[P]: per contact pair, a lower bound of the mesh's distance to its plane or box
+        (negative: may overlap), m."""
+        rot, pos = data.geom_xmat[self.mesh_geom], data.geom_xpos[self.mesh_geom]
+        world = pos[:, None, :] + jnp.sum(rot[:, None] * self.vertices[:, :, None, :], -1)
+        other_rot, other_pos = data.geom_xmat[self.other_geom], data.geom_xpos[self.other_geom]
+        local = jnp.sum(other_rot[:, None] * (world - other_pos[:, None, :])[..., None], -2)
+        plane = jnp.min(local[..., 2], axis=1)
+        beyond = jnp.concatenate([local - self.half_size[:, None], -local - self.half_size[:, None]],
+                                 axis=-1)  # [P, V, 6]: how far each vertex lies past each face
+        box = jnp.max(jnp.min(beyond, axis=1), axis=-1)
+        return jnp.where(self.is_plane, plane, box)
+
+    def may_touch(self, data: mjx.Data) -> jax.Array:
+        """bool: whether any contact pair may be within its margin."""
+        return jnp.any(self.gaps(data) < self.reach)
+
+    def past_limit(self, qpos: jax.Array) -> jax.Array:
+        """bool: whether any limited joint has an active limit row (MuJoCo's `pos < 0`)."""
+        angle = qpos[self.qpos_index]
+        low, high = self.jnt_range[:, 0], self.jnt_range[:, 1]
+        pos = jnp.minimum(angle - low, high - angle) - self.jnt_margin
+        return jnp.any(self.limited & (pos < 0))
+
+
+__all__ = ["Collision", "ContactReach", "pad_convex"]

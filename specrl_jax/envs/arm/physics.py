@@ -11,7 +11,9 @@ the table/floor contacts and integrate (semi-implicit Euler, as Bullet). Bullet 
 and contact rows in one problem; counting the last substep's contact forces in the motor solve
 is one Gauss-Seidel pass between the two, lagged by a substep, so that a motor holds against a
 contact as it does in Bullet. MuJoCo's own soft joint limits stay in the model as a backstop;
-they act only where a contact pushes a joint past its limit.
+they act only where a contact pushes a joint past its limit. MuJoCo's collision and solver,
+most of a substep's cost, run only for the arms whose hulls come within reach of the table or
+floor or whose joints pass a limit (`Physics` says how).
 """
 
 from __future__ import annotations
@@ -22,8 +24,9 @@ import mujoco
 import numpy as np
 from flax import struct
 
-from specrl_jax.envs.arm.collision import Collision
+from specrl_jax.envs.arm.collision import Collision, ContactReach
 from specrl_jax.envs.arm.kinematics import ChainKinematics
+from specrl_jax.envs.compaction import where_needed
 from specrl_jax.envs.zone import small_linalg
 from specrl_jax.envs.zone.mjx_import import mjx
 
@@ -32,6 +35,10 @@ SUBSTEPS = 20
 MOTOR_RATE = 0.1 / 0.002
 #: projected Gauss-Seidel sweeps over the 7 motor rows per substep
 PGS_SWEEPS = 16
+#: the sub-batch sizes, as shares of a batch, whose collision and constraint solve run gathered
+SOLVE_CAPACITIES = (0.125, 0.25)
+#: how far beyond a contact's margin an arm's bounding spheres still run the solver, m
+REACH_SLACK = 1e-3
 
 
 @struct.dataclass
@@ -113,9 +120,18 @@ def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: 
 
 
 class Physics:
-    """Steps the arm model: `init(qpos)` and `step(state, target)` for one arm (vmappable)."""
+    """Steps the arm model: `init(qpos)` and `step(state, target)` for one arm (vmappable).
 
-    def __init__(self, model: mujoco.MjModel, force_limit: np.ndarray, substeps: int = SUBSTEPS):
+    MuJoCo's collision and constraint solver run only for arms that may touch the table or
+    floor or pass a joint limit in the substep (`ContactReach`); the others need no constraint
+    force, and take the unconstrained acceleration. Under `vmap` those arms are gathered into
+    the smallest sub-batch of `solve_capacities` times the batch that holds them
+    (`compaction.where_needed`; all arms when more need it). `solve_capacities=None` runs the
+    collision and solver on every arm, as `mjx.forward`.
+    """
+
+    def __init__(self, model: mujoco.MjModel, force_limit: np.ndarray, substeps: int = SUBSTEPS,
+                 solve_capacities: tuple[float, ...] | None = SOLVE_CAPACITIES):
         self.mj_model = model
         self.model = mjx.put_model(model, impl="jax")
         self.substeps = substeps
@@ -127,6 +143,10 @@ class Physics:
         self.kinematics = ChainKinematics(model)
         self.collision = Collision(model, self.model)
         self._has_constraints = self._template._impl.efc_J.size > 0
+        self._reach = ContactReach(model, self.model, REACH_SLACK)
+        self.solve_capacities = solve_capacities
+        self._constrain = (self._constrain_one if solve_capacities is None else where_needed(
+            self._constrain_one, self._needs_solver, self._unconstrained, solve_capacities))
 
     def init(self, qpos: jax.Array) -> PhysicsState:
         zeros = jnp.zeros(self.mj_model.nv, jnp.float32)
@@ -139,20 +159,36 @@ class Physics:
         return self.kinematics.fill(data)
 
     def position_stage(self, data: mjx.Data) -> mjx.Data:
-        """`mjx.fwd_position` with the chain's own kinematics and collision driver
-        (ChainKinematics and Collision say why); the stages this model lacks (cameras, lights,
-        tendons) are left out."""
+        """`mjx.fwd_position` without the collision and constraints (`solved` has them),
+        with the chain's own kinematics (ChainKinematics says why); the stages this model lacks
+        (cameras, lights, tendons) are left out."""
         m = self.model
         data = mjx.com_pos(m, self.kinematics.fill(data))
-        data = mjx.factor_m(m, mjx.crb(m, data))
-        data = mjx.make_constraint(m, self.collision.collide(m, data))
-        return mjx.transmission(m, data)
+        return mjx.transmission(m, mjx.factor_m(m, mjx.crb(m, data)))
 
-    def substep(self, data: mjx.Data, target: jax.Array, qfrc_constraint: jax.Array) -> mjx.Data:
-        """One physics step of h = model timestep toward joint targets `target` ([7], rad).
-        `qfrc_constraint` ([7], N m): the previous substep's constraint forces, which the motor
-        solve counts as known (Bullet solves motor and contact rows together; this lags the
-        contacts by one substep)."""
+    def solved(self, data: mjx.Data) -> mjx.Data:
+        """`data` (after `accelerate`) with MuJoCo's contacts, constraint rows and solve."""
+        m = self.model
+        return mjx.solve(m, mjx.make_constraint(m, self.collision.collide(m, data)))
+
+    def _constrain_one(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
+        data = self.solved(data)
+        return data.qacc, data.qfrc_constraint
+
+    def _needs_solver(self, data: mjx.Data) -> jax.Array:
+        return self._reach.may_touch(data) | self._reach.past_limit(data.qpos)
+
+    @staticmethod
+    def _unconstrained(data: mjx.Data) -> tuple[jax.Array, jax.Array]:
+        return data.qacc_smooth, jnp.zeros_like(data.qacc_smooth)
+
+    def accelerate(self, data: mjx.Data, target: jax.Array,
+                   qfrc_constraint: jax.Array) -> mjx.Data:
+        """`data` at a substep's start with the motor torques toward joint targets `target`
+        ([7], rad) applied and the unconstrained acceleration `qacc_smooth`. `qfrc_constraint`
+        ([7], N m): the previous substep's constraint forces, which the motor solve counts as
+        known (Bullet solves motor and contact rows together; this lags the contacts by one
+        substep)."""
         m = self.model
         data = mjx.fwd_velocity(m, self.position_stage(data))
         mass = mjx.full_m(m, data)
@@ -162,13 +198,14 @@ class Physics:
         tau = motor_torque(mass, free_accel, data.qvel, data.qpos, target,
                            jnp.asarray(self.force_limit), h, inverse=inverse,
                            joint_range=jnp.asarray(self.joint_range))
-        data = data.replace(qfrc_applied=tau)
-        data = mjx.fwd_acceleration(m, mjx.fwd_actuation(m, data))
-        if self._has_constraints:
-            data = mjx.solve(m, data)
-        else:
-            data = data.replace(qacc=data.qacc_smooth)
-        return mjx.euler(m, data)
+        return mjx.fwd_acceleration(m, mjx.fwd_actuation(m, data.replace(qfrc_applied=tau)))
+
+    def substep(self, data: mjx.Data, target: jax.Array, qfrc_constraint: jax.Array) -> mjx.Data:
+        """One physics step of h = model timestep toward joint targets `target` ([7], rad),
+        after the previous substep's constraint forces `qfrc_constraint` ([7], N m)."""
+        data = self.accelerate(data, target, qfrc_constraint)
+        qacc, qfrc = self._constrain(data) if self._has_constraints else self._unconstrained(data)
+        return mjx.euler(self.model, data.replace(qacc=qacc, qfrc_constraint=qfrc))
 
     def step(self, state: PhysicsState, target: jax.Array) -> PhysicsState:
         """`substeps` physics steps toward `target` (float[7], rad), held through the step."""
