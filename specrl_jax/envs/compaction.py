@@ -24,10 +24,17 @@ def _batch_rows(x: jax.Array, size: int) -> jax.Array:
     return jnp.broadcast_to(x, (size,) + x.shape)
 
 
+def _need(needs: Callable, x: Any) -> jax.Array:
+    need = jnp.asarray(needs(x))
+    if need.shape != ():
+        raise ValueError(f"`needs` must return one bool per item; got shape {need.shape}")
+    return need
+
+
 def _run_batch(fn: Callable, needs: Callable, default: Callable, capacities: tuple[float, ...],
                x: Any, axes: Any) -> Any:
     """`fn` or `default` per item of `x` (leaves with `axes` 0 carry the batch axis)."""
-    need = jax.vmap(needs, in_axes=(axes,))(x)
+    need = jax.vmap(lambda item: _need(needs, item), in_axes=(axes,))(x)
     size = need.shape[0]
     fallback = jax.vmap(default, in_axes=(axes,))(x)
 
@@ -103,6 +110,10 @@ def where_needed(fn: Callable, needs: Callable, default: Callable,
         capacities: fractions of the batch: under `vmap` over B items, `fn` runs on a gathered
             sub-batch of the smallest `ceil(capacity * B)` that holds every item needing it,
             and on all B when none does (each size is a program of its own).
+
+    The three functions may close over constants only: a traced value (a batched one above
+    all) must come in through `x`. Forward-mode differentiation works; reverse mode does not
+    (`custom_vmap` has no transpose).
     """
     capacities = tuple(float(c) for c in capacities)
     if not capacities or not all(0.0 < c <= 1.0 for c in capacities):
@@ -110,7 +121,7 @@ def where_needed(fn: Callable, needs: Callable, default: Callable,
 
     @custom_vmap
     def one(x: Any) -> Any:
-        return jax.lax.cond(needs(x), fn, default, x)
+        return jax.lax.cond(_need(needs, x), fn, default, x)
 
     @one.def_vmap
     def batched(axis_size: int, in_batched: list, x: Any):

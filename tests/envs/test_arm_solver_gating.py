@@ -39,14 +39,24 @@ def test_contact_reach_bounds_the_distance_of_every_pair():
     assert close.size >= 50 and np.quantile(close, 0.9) < 1e-5
     touching = (distance < 0).any(1)
     assert touching.sum() >= 10 and (needs >= touching).all()
+    # and MJX's own activation: a contact row acts where dist < includemargin
+    m = physics.model
+
+    def active(q):
+        data = physics.data(physics.init(q))
+        contact = physics.collision.collide(m, data)._impl.contact
+        return jnp.any(contact.dist < contact.includemargin)
+
+    mjx_active = np.asarray(jax.jit(jax.vmap(active))(jnp.asarray(qs)))
+    assert mjx_active.sum() >= 10 and (needs >= mjx_active).all()
     assert 10 <= (~needs).sum()  # the test also saw arms that skip the solver
     assert (needs & ~touching).sum() <= 0.1 * len(qs)
 
 
 def test_gathered_step_matches_the_step_that_solves_every_arm():
     """One env step of 32 arms, 12 starting on the table or floor (a link up to 1 cm deep)
-    and 20 free: gathering them into 16 slots (capacities 0.25 and 0.5) or solving all of them
-    (capacity 0.3, too few slots) lands where the step that runs MuJoCo's solver on every arm does, to float
+    and 20 free: gathering them into 16 slots (capacities 0.25 and 0.5), or with 10 slots
+    (capacity 0.3) solving every arm while more than 10 need it and gathering after, lands where the step that runs MuJoCo's solver on every arm does, to float
     rounding (free arms take MuJoCo's unconstrained acceleration exactly, the solver's to its
     tolerance)."""
     model = arm_model.load_model()

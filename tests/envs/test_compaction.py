@@ -64,6 +64,13 @@ def test_one_item_and_a_loop_inside_vmap():
     np.testing.assert_allclose(got, jax.vmap(lambda x: loop(reference, x))(x), rtol=1e-6)
 
 
+def test_needs_must_give_one_bool_per_item():
+    function = where_needed(expensive, lambda x: x["a"][:1] > 0.7, default, [0.5])
+    x = {"a": jnp.ones((8, 2)), "scale": jnp.ones(8)}
+    with pytest.raises(ValueError, match="one bool per item"):
+        jax.vmap(function)(x)
+
+
 def test_capacities_must_be_fractions():
     for bad in ([], [0.5, 0.0], [1.5]):
         with pytest.raises(ValueError, match=r"\(0, 1\]"):

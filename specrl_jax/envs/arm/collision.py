@@ -140,6 +140,12 @@ class ContactReach:
             raise ValueError("ContactReach takes plane-mesh and box-mesh contact pairs only")
         if sum(len(pairs) for pairs in collision_driver._geom_groups(m).values()) != m.npair:
             raise ValueError("ContactReach needs every contact in an explicit pair")
+        hinge_or_slide = np.isin(m.jnt_type, [mujoco.mjtJoint.mjJNT_HINGE,
+                                              mujoco.mjtJoint.mjJNT_SLIDE])
+        if m.neq or m.ntendon or np.any(m.dof_frictionloss > 0) or np.any(
+                m.jnt_limited.astype(bool) & ~hinge_or_slide):
+            raise ValueError("ContactReach knows contact pairs and hinge/slide limits only; this "
+                             "model has equality, tendon, friction-loss or ball/free limit rows")
         hulls = [np.asarray(model._impl.mesh_convex[m.geom_dataid[g]].vert) for g in second]
         if len({h.shape for h in hulls}) > 1:
             raise ValueError("ContactReach needs hulls with one vertex count (set maxhullvert)")
@@ -148,7 +154,7 @@ class ContactReach:
         self.vertices = np.stack(hulls).astype(np.float32) if hulls else np.zeros((0, 1, 3))
         self.is_plane = m.geom_type[first] == mujoco.mjtGeom.mjGEOM_PLANE
         self.half_size = m.geom_size[first].astype(np.float32)
-        self.reach = (m.pair_margin - m.pair_gap + slack).astype(np.float32)
+        self.reach = (m.pair_margin + slack).astype(np.float32)  # MJX's includemargin: the margin
         self.limited = m.jnt_limited.astype(bool)
         self.qpos_index = m.jnt_qposadr
         self.jnt_range = m.jnt_range.astype(np.float32)

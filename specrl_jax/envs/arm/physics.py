@@ -169,7 +169,9 @@ class Physics:
     def solved(self, data: mjx.Data) -> mjx.Data:
         """`data` (after `accelerate`) with MuJoCo's contacts, constraint rows and solve."""
         m = self.model
-        return mjx.solve(m, mjx.make_constraint(m, self.collision.collide(m, data)))
+        # `where_needed` may trace this after `step`'s own context has closed (under an outer vmap)
+        with small_linalg.small_cholesky():
+            return mjx.solve(m, mjx.make_constraint(m, self.collision.collide(m, data)))
 
     def _constrain_one(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
         data = self.solved(data)
