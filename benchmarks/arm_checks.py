@@ -27,6 +27,7 @@ import functools
 import json
 import sys
 import time
+from typing import Callable
 from unittest import mock
 
 import jax
@@ -136,22 +137,27 @@ def line_search(num_envs: int, num_steps: int, lengths: list[int]) -> dict:
     return settings_timing(models, "50", num_envs, num_steps)
 
 
-def settings_timing(models: dict[str, mujoco.MjModel], baseline: str, num_envs: int,
-                    num_steps: int, counting: bool = False) -> dict:
-    """The physics step at each solver setting (`models[name]`): a rollout of `num_steps`
-    saturated random actions at `num_envs` arms (ms per env step after compile); then one env
-    step from every state of the `baseline` rollout with each setting: how many states give
-    bit-identical joint angles and the largest difference (rad). With `counting`, MJX's Newton
+def settings_timing(models: dict[str, mujoco.MjModel | Physics], baseline: str, num_envs: int,
+                    num_steps: int, counting: bool = False, actions: np.ndarray | None = None,
+                    probe: Callable | None = None) -> dict:
+    """The physics step at each setting (`models[name]`, a model or its `Physics`): a rollout of
+    `num_steps` of `actions` (float[T, B, 7]; default saturated random ones) at `num_envs` arms
+    from the neutral pose (ms per env step after compile); then one env step from every state
+    of the `baseline` rollout with each setting: how many states give bit-identical joint angles
+    and the largest and 99.9th-percentile difference (rad). With `counting`, MJX's Newton
     iterations per substep over each setting's rollout (`iteration_summary`; a second rollout,
-    by `counting_env_step`)."""
-    actions = jnp.sign(jax.random.uniform(jax.random.key(3), (num_steps, num_envs, 7),
-                                          minval=-1, maxval=1))
-    start_state = jax.vmap(Physics(models[baseline], arm_model.FORCE_LIMITS).init)(
+    by `counting_env_step`). With `probe` (batched states -> float), its value at each of the
+    baseline rollout's states."""
+    if actions is None:
+        actions = np.asarray(jnp.sign(jax.random.uniform(
+            jax.random.key(3), (num_steps, num_envs, 7), minval=-1, maxval=1)))
+    physics = {name: m if isinstance(m, Physics) else Physics(m, arm_model.FORCE_LIMITS)
+               for name, m in models.items()}
+    start_state = jax.vmap(physics[baseline].init)(
         jnp.tile(jnp.asarray(NEUTRAL_QPOS, jnp.float32), (num_envs, 1)))
     out, visited, last = {}, [], {}
-    for name in [baseline, *[n for n in models if n != baseline]]:
-        physics = Physics(models[name], arm_model.FORCE_LIMITS)
-        step = env_step(physics)
+    for name in [baseline, *[n for n in physics if n != baseline]]:
+        step = env_step(physics[name])
         start = time.perf_counter()
         state = jax.block_until_ready(step(start_state, actions[0]))
         compile_s = time.perf_counter() - start
@@ -165,74 +171,44 @@ def settings_timing(models: dict[str, mujoco.MjModel], baseline: str, num_envs: 
         out[name] = {"ms_per_env_step": 1000 * (time.perf_counter() - start) / num_steps,
                      "first_call_s": compile_s}
         if counting:
-            run = mjx_rollout(counting_env_step(physics), start_state, np.asarray(actions))
+            run = mjx_rollout(counting_env_step(physics[name]), start_state, np.asarray(actions))
             out[name]["newton_iterations"] = iteration_summary(run["newton_iterations"],
                                                                run["engaged"])
+        if probe is not None and name == baseline:
+            out[name]["probe_by_step"] = [round(float(probe(s)), 3) for s in visited]
         last[name] = step
         log(f"settings {name}: {json.dumps(out[name])}")
     states = jax.tree.map(lambda *x: jnp.concatenate(x), *visited)
-    flat_actions = actions.reshape(-1, 7)
+    flat_actions = jnp.asarray(actions.reshape(-1, 7))
     reference = np.asarray(last[baseline](states, flat_actions).qpos)
     for name, row in out.items():
         if name != baseline:
             diff = np.abs(np.asarray(last[name](states, flat_actions).qpos) - reference).max(1)
             row.update(states=int(diff.size), identical=int((diff == 0).sum()),
-                       max_abs_dq=float(diff.max()))
+                       max_abs_dq=float(diff.max()), p999_abs_dq=float(np.quantile(diff, 0.999)))
             log(f"settings {name} against {baseline}: {json.dumps(row)}")
     return out
 
 
-def capacity_timing(num_envs: int, num_steps: int, capacities: list[float | None]) -> dict:
-    """The physics step with the collision and solver gathered for the arms that need them,
-    into one sub-batch size per run (`Physics(solve_capacities=(c,))`; None: every arm, MJX's
-    way; "default": the model's `SOLVE_CAPACITIES`) under uniform random and
-    saturated actions from the neutral pose: ms per env step after compile, the share of arms
-    that needed the solver at each step (`ContactReach`), and the largest joint-angle difference
-    against `None` one env step from every visited state (rad)."""
+def capacity_timing(num_envs: int, num_steps: int, capacities: list[float | str]) -> dict:
+    """The physics step with the collision and solver gathered for the arms that need them, one
+    sub-batch size per run (`Physics(solve_capacities=(c,))`; "default": the model's
+    `SOLVE_CAPACITIES`), against every arm solving ("None"), under uniform random and saturated
+    actions (`settings_timing`); "None"'s `probe_by_step` is the share of arms that needed the
+    solver (`ContactReach`) at each step."""
     model = arm_model.load_model()
-    out = {}
-    for kind in ("uniform", "saturated"):
-        key = jax.random.key(4)
-        actions = (saturated_actions(key, num_steps, num_envs) if kind == "saturated" else
-                   np.asarray(jax.random.uniform(key, (num_steps, num_envs, 7), minval=-1,
-                                                 maxval=1)))
-        tiers = lambda c: SOLVE_CAPACITIES if c == "default" else None if c is None else (c,)
-        steps = {c: env_step(Physics(model, arm_model.FORCE_LIMITS, solve_capacities=tiers(c)))
-                 for c in capacities}
-        probe = Physics(model, arm_model.FORCE_LIMITS)
-        needs = jax.jit(jax.vmap(lambda s: probe._needs_solver(probe.data(s))))
-        start_state = jax.vmap(probe.init)(
-            jnp.tile(jnp.asarray(NEUTRAL_QPOS, jnp.float32), (num_envs, 1)))
-        rows, visited = {}, []
-        for capacity, step in steps.items():
-            start = time.perf_counter()
-            jax.block_until_ready(step(start_state, actions[0]))
-            compile_s = time.perf_counter() - start
-            state, share = start_state, []
-            start = time.perf_counter()
-            for t in range(num_steps):
-                if capacity is None:
-                    visited.append(state)
-                state = step(state, actions[t])
-            jax.block_until_ready(state)
-            row = {"ms_per_env_step": 1000 * (time.perf_counter() - start) / num_steps,
-                   "first_call_s": compile_s}
-            if capacity is None:
-                share = [float(jnp.mean(needs(s))) for s in visited]
-                row["need_share_by_step"] = [round(x, 3) for x in share]
-            rows[str(capacity)] = row
-            log(f"capacity {kind} {capacity}: {json.dumps(row)}")
-        states = jax.tree.map(lambda *x: jnp.concatenate(x), *visited)
-        flat = jnp.asarray(actions.reshape(-1, 7))
-        reference = np.asarray(steps[None](states, flat).qpos)
-        for capacity, step in steps.items():
-            if capacity is not None:
-                diff = np.abs(np.asarray(step(states, flat).qpos) - reference).max(1)
-                rows[str(capacity)].update(states=int(diff.size), max_abs_dq=float(diff.max()),
-                                           p999_abs_dq=float(np.quantile(diff, 0.999)))
-                log(f"capacity {kind} {capacity} against None: {json.dumps(rows[str(capacity)])}")
-        out[kind] = rows
-    return out
+    tiers = lambda c: SOLVE_CAPACITIES if c == "default" else (c,)
+    physics = {"None": Physics(model, arm_model.FORCE_LIMITS, solve_capacities=None),
+               **{str(c): Physics(model, arm_model.FORCE_LIMITS, solve_capacities=tiers(c))
+                  for c in capacities}}
+    gated = physics[str(capacities[0])]
+    share = jax.jit(lambda s: jnp.mean(jax.vmap(lambda x: gated._needs_solver(gated.data(x)))(s)))
+    key = jax.random.key(4)
+    actions = {"uniform": np.asarray(jax.random.uniform(key, (num_steps, num_envs, 7),
+                                                        minval=-1, maxval=1)),
+               "saturated": saturated_actions(key, num_steps, num_envs)}
+    return {kind: settings_timing(physics, "None", num_envs, num_steps, actions=a, probe=share)
+            for kind, a in actions.items()}
 
 
 def saturated_actions(key: jax.Array, num_steps: int, num_envs: int) -> np.ndarray:
@@ -782,7 +758,7 @@ def main() -> None:
     if "capacity" in args.parts:
         log(f"capacity: {args.ls_batch} arms x {args.ls_steps} steps")
         shares = [c if c == "default" else float(c) for c in args.capacities]
-        results["capacity"] = capacity_timing(args.ls_batch, args.ls_steps, [None, *shares])
+        results["capacity"] = capacity_timing(args.ls_batch, args.ls_steps, shares)
         save()
     if "nan" in args.parts:
         for env_id in ("PandaLTLReach0Joints-v0", "PandaLTLReach1Joints-v0"):

@@ -5,9 +5,8 @@
 run both branches on every item; here the batching rule instead gathers the items that need `fn`
 into the smallest sub-batch of the fixed sizes `ceil(capacity * B)` that holds them all, runs
 `fn` on those only and scatters the results back, or runs `fn` on the whole batch when more
-items need it than the largest holds. Nested
-`vmap`s (seeds x envs) are merged into one batch first. An item's result does not depend on
-which path ran or on the other items in its batch.
+items need it than the largest holds. Nested `vmap`s (seeds x envs) are merged into one batch
+first. An item's result does not depend on which path ran or on the other items in its batch.
 """
 
 from __future__ import annotations
@@ -18,10 +17,6 @@ from typing import Any, Callable, Sequence
 import jax
 import jax.numpy as jnp
 from jax.custom_batching import custom_vmap
-
-
-def _batch_rows(x: jax.Array, size: int) -> jax.Array:
-    return jnp.broadcast_to(x, (size,) + x.shape)
 
 
 def _need(needs: Callable, x: Any) -> jax.Array:
@@ -53,7 +48,6 @@ def _run_batch(fn: Callable, needs: Callable, default: Callable, capacities: tup
         return run
 
     tiers = sorted({max(1, math.ceil(c * size)) for c in capacities} - {size})
-    tiers = [slots for slots in tiers if slots < size]
     if not tiers:
         return everyone()
     tier = jnp.sum(jnp.sum(need) > jnp.asarray(tiers))  # the smallest tier that fits, or all
@@ -86,7 +80,7 @@ def _batched_runner(fn: Callable, needs: Callable, default: Callable, capacities
                 new_mask.append(False)
                 continue
             if not has_outer:  # [inner, ...] -> [outer, inner, ...]
-                leaf = _batch_rows(leaf, outer)
+                leaf = jnp.broadcast_to(leaf, (outer,) + leaf.shape)
             elif not m:  # [outer, ...] -> [outer, inner, ...]
                 leaf = jnp.broadcast_to(leaf[:, None], (outer, inner) + leaf.shape[1:])
             new_batched.append(leaf.reshape((outer * inner,) + leaf.shape[2:]))

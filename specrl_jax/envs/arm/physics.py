@@ -37,7 +37,7 @@ MOTOR_RATE = 0.1 / 0.002
 PGS_SWEEPS = 16
 #: the sub-batch sizes, as shares of a batch, whose collision and constraint solve run gathered
 SOLVE_CAPACITIES = (0.125, 0.25)
-#: how far beyond a contact's margin an arm's bounding spheres still run the solver, m
+#: how far beyond a contact's margin an arm's distance bound still runs the solver, m
 REACH_SLACK = 1e-3
 
 
@@ -144,7 +144,6 @@ class Physics:
         self.collision = Collision(model, self.model)
         self._has_constraints = self._template._impl.efc_J.size > 0
         self._reach = ContactReach(model, self.model, REACH_SLACK)
-        self.solve_capacities = solve_capacities
         self._constrain = (self._constrain_one if solve_capacities is None else where_needed(
             self._constrain_one, self._needs_solver, self._unconstrained, solve_capacities))
 
