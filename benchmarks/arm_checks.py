@@ -190,17 +190,23 @@ def settings_timing(models: dict[str, mujoco.MjModel | Physics], baseline: str, 
     return out
 
 
-def capacity_timing(num_envs: int, num_steps: int, capacities: list[float | str]) -> dict:
+def capacity_timing(num_envs: int, num_steps: int, capacities: list[float | str],
+                    contacts: list[int | None] = ()) -> dict:
     """The physics step with the collision and solver gathered for the arms that need them, one
     sub-batch size per run (`Physics(solve_capacities=(c,))`; "default": the model's
-    `SOLVE_CAPACITIES`), against every arm solving ("None"), under uniform random and saturated
-    actions (`settings_timing`); "None"'s `probe_by_step` is the share of arms that needed the
-    solver (`ContactReach`) at each step."""
+    `SOLVE_CAPACITIES`), and at the default sizes with the solve over each of `contacts`
+    nearest contacts (None: all), against every arm solving over every contact ("None"), under
+    uniform random and saturated actions (`settings_timing`); "None"'s `probe_by_step` is the
+    share of arms that needed the solver (`ContactReach`) at each step."""
     model = arm_model.load_model()
     tiers = lambda c: SOLVE_CAPACITIES if c == "default" else (c,)
-    physics = {"None": Physics(model, arm_model.FORCE_LIMITS, solve_capacities=None),
+    physics = {"None": Physics(model, arm_model.FORCE_LIMITS, solve_capacities=None,
+                               solve_contacts=None),
                **{str(c): Physics(model, arm_model.FORCE_LIMITS, solve_capacities=tiers(c))
-                  for c in capacities}}
+                  for c in capacities},
+               **{f"default, {k or 'all'} contacts": Physics(model, arm_model.FORCE_LIMITS,
+                                                              solve_contacts=k)
+                  for k in contacts}}
     gated = physics[str(capacities[0])]
     share = jax.jit(lambda s: jnp.mean(jax.vmap(lambda x: gated._needs_solver(gated.data(x)))(s)))
     key = jax.random.key(4)
@@ -689,6 +695,8 @@ def main() -> None:
     parser.add_argument("--batch", type=int, default=4096)
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--bank-size", type=int, default=4096)
+    parser.add_argument("--envs", nargs="+", help="nan: the arm worlds to roll out",
+                        default=["PandaLTLReach0Joints-v0", "PandaLTLReach1Joints-v0"])
     parser.add_argument("--gain-batch", type=int, default=256)
     parser.add_argument("--gain-steps", type=int, default=400)
     parser.add_argument("--parts", nargs="+",
@@ -704,6 +712,9 @@ def main() -> None:
                         help="iterations, iter_vs_c: Newton tolerances (at 100 iterations)")
     parser.add_argument("--capacities", nargs="+", default=["default", "0.25"],
                         help="capacity: sub-batch shares to time against None (every arm)")
+    parser.add_argument("--contacts", nargs="*", default=[],
+                        help="capacity: solves over this many nearest contacts ('all': every "
+                             "one) to time at the default sub-batch sizes")
     parser.add_argument("--c-batch", type=int, default=256)
     parser.add_argument("--c-steps", type=int, default=150)
     parser.add_argument("--c-stride", type=int, default=5,
@@ -758,10 +769,11 @@ def main() -> None:
     if "capacity" in args.parts:
         log(f"capacity: {args.ls_batch} arms x {args.ls_steps} steps")
         shares = [c if c == "default" else float(c) for c in args.capacities]
-        results["capacity"] = capacity_timing(args.ls_batch, args.ls_steps, shares)
+        contacts = [None if k == "all" else int(k) for k in args.contacts]
+        results["capacity"] = capacity_timing(args.ls_batch, args.ls_steps, shares, contacts)
         save()
     if "nan" in args.parts:
-        for env_id in ("PandaLTLReach0Joints-v0", "PandaLTLReach1Joints-v0"):
+        for env_id in args.envs:
             log(f"{env_id}: saturated rollout, {args.batch} arms x {args.steps} steps")
             results[env_id] = saturated_rollout(env_id, args.batch, args.steps, args.bank_size)
             log(json.dumps(results[env_id]))

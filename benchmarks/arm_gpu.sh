@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
 # The arm world on one lent GPU, within ARM_GPU_SECONDS (default 560 s), compile included. With the
-# gated collision and solve (session 13) the env step compiles in about 45 s per batch size on an
-# H100, so the parts are: env throughput of PandaLTLReach0Joints-v0, then PandaLTLReach1Joints-v0,
-# with auto-reset from a layout bank (batches 32,768 and 65,536, 5 steps a call); where a substep's
-# time goes (`arm_stages.py`, 4,096 arms at states a uniform rollout reaches); the NaN check (4,096
-# arms x 100 saturated steps per mode; the issue's 1,000 steps take about 3 minutes a mode, run them
-# apart); the tracking gains (256 arms x 300 steps). arm_checks.py's `--parts iterations` and
-# `--parts capacity` time the solver's settings and the gating's sub-batch sizes when needed.
+# gated collision and the solve over the nearest contacts (sessions 13-14) the env step compiles in
+# about 75 s per batch size on an H100, so the parts are: env throughput of
+# PandaLTLReach0Joints-v0 (batches 32,768 and 65,536), then PandaLTLReach1Joints-v0 (32,768;
+# 65,536 runs out of an H100's memory), with auto-reset from a layout bank (5 steps a call);
+# where a substep's time goes (`arm_stages.py`, 4,096 arms at states a uniform rollout reaches);
+# the NaN check (4,096 arms x 100 saturated steps per mode; the issue's 1,000 steps take about
+# 3 minutes a mode, run them apart); the tracking gains (256 arms x 300 steps) if time is left.
+# arm_checks.py's `--parts iterations` and `--parts capacity` time the solver's settings, the
+# gating's sub-batch sizes and the solve's contact count when needed.
 #
 # Each part has its own time limit, cut further so that the whole script ends by ARM_GPU_SECONDS;
 # a part with under 20 s left is skipped. Parts share JAX's persistent compilation cache. Writes
@@ -36,11 +38,11 @@ part() {  # part LIMIT SCRIPT ARGS...: python SCRIPT ARGS within LIMIT s and the
 SECONDS=0
 nvidia-smi --query-gpu=name,driver_version --format=csv,noheader
 python -c "import jax, mujoco; print('jax', jax.__version__, 'mujoco', mujoco.__version__, jax.devices())"
-bank=(--resets bank --batches 32768 65536 --steps 5 --repeats 2 --bank-size 4096 --results "$results")
-part 150 benchmarks/env_throughput.py --envs PandaLTLReach0Joints-v0 "${bank[@]}"
-part 150 benchmarks/env_throughput.py --envs PandaLTLReach1Joints-v0 "${bank[@]}"
-part 120 benchmarks/arm_stages.py --batch 4096 --steps 30 --out "$OUT/arm_stages.json"
-part 130 benchmarks/arm_checks.py --parts nan --batch 4096 --steps 100 --bank-size 4096 \
+bank=(--resets bank --steps 5 --repeats 2 --bank-size 4096 --results "$results")
+part 200 benchmarks/env_throughput.py --envs PandaLTLReach0Joints-v0 --batches 32768 65536 "${bank[@]}"
+part 110 benchmarks/env_throughput.py --envs PandaLTLReach1Joints-v0 --batches 32768 "${bank[@]}"
+part 180 benchmarks/arm_stages.py --batch 4096 --steps 30 --out "$OUT/arm_stages.json"
+part 200 benchmarks/arm_checks.py --parts nan --batch 4096 --steps 100 --bank-size 4096 \
   --out "$OUT/arm_checks.json"
 part 60 benchmarks/arm_checks.py --parts gains --gain-batch 256 --gain-steps 300 \
   --out "$OUT/arm_checks_gains.json"

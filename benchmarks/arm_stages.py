@@ -20,7 +20,7 @@ import numpy as np
 
 from specrl_jax.envs.arm import model as arm_model
 from specrl_jax.envs.arm.env import ACTION_SCALE
-from specrl_jax.envs.arm.physics import Physics, motor_torque, spd_inverse
+from specrl_jax.envs.arm.physics import Physics, motor_torque, nearest_contacts, spd_inverse
 from specrl_jax.envs.zone import small_linalg
 from specrl_jax.envs.zone.mjx_import import mjx
 
@@ -41,7 +41,8 @@ def timed(function, *args, repeats: int) -> tuple[float, object]:
 
 def profile(num_envs: int, num_steps: int, repeats: int) -> dict:
     gated = Physics(arm_model.load_model(), arm_model.FORCE_LIMITS)
-    every = Physics(arm_model.load_model(), arm_model.FORCE_LIMITS, solve_capacities=None)
+    every = Physics(arm_model.load_model(), arm_model.FORCE_LIMITS, solve_capacities=None,
+                    solve_contacts=None)
     m, h = gated.model, float(gated.mj_model.opt.timestep)
     step = jax.jit(jax.vmap(lambda s, a: gated.step(s, s.qpos + ACTION_SCALE * a)))
     state = jax.vmap(gated.init)(jnp.tile(jnp.asarray(arm_model.NEUTRAL_QPOS, jnp.float32),
@@ -82,6 +83,9 @@ def profile(num_envs: int, num_steps: int, repeats: int) -> dict:
     collided = row("collision, every arm", lambda d: gated.collision.collide(m, d), accelerated)
     constrained = row("make_constraint, every arm", lambda d: mjx.make_constraint(m, d), collided)
     row("Newton solve, every arm", lambda d: mjx.solve(m, d), constrained)
+    nearest = lambda d: mjx.make_constraint(m, nearest_contacts(d, gated.solve_contacts))
+    row(f"make_constraint and Newton solve, every arm, {gated.solve_contacts} nearest contacts",
+        lambda d: mjx.solve(m, nearest(d)), collided)
     row("collision + constraint + solve, gated", gated._constrain, accelerated)
     row("euler", lambda d: mjx.euler(m, d.replace(qacc=d.qacc_smooth)), accelerated)
     row("substep, gated (the default)", gated.substep, start, target, state.qfrc_constraint)

@@ -4,9 +4,10 @@
 `needs(x)`, else `default(x)`. Called on one item it is a `lax.cond`. Under `vmap` a `cond` would
 run both branches on every item; here the batching rule instead gathers the items that need `fn`
 into the smallest sub-batch of the fixed sizes `ceil(capacity * B)` that holds them all, runs
-`fn` on those only and scatters the results back, or runs `fn` on the whole batch when more
-items need it than the largest holds. Nested `vmap`s (seeds x envs) are merged into one batch
-first. An item's result does not depend on which path ran or on the other items in its batch.
+`fn` on those only and scatters the results back, runs `fn` on the whole batch when more items
+need it than the largest holds, and not at all when none does. Nested `vmap`s (seeds x envs)
+are merged into one batch first. An item's result does not depend on which path ran or on the
+other items in its batch.
 """
 
 from __future__ import annotations
@@ -48,10 +49,9 @@ def _run_batch(fn: Callable, needs: Callable, default: Callable, capacities: tup
         return run
 
     tiers = sorted({max(1, math.ceil(c * size)) for c in capacities} - {size})
-    if not tiers:
-        return everyone()
-    tier = jnp.sum(jnp.sum(need) > jnp.asarray(tiers))  # the smallest tier that fits, or all
-    return jax.lax.switch(tier, [*map(gathered, tiers), everyone])
+    count = jnp.sum(need)
+    tier = jnp.sum(count > jnp.asarray([0, *tiers]))  # none, the smallest tier that fits, or all
+    return jax.lax.switch(tier, [lambda: fallback, *map(gathered, tiers), everyone])
 
 
 def _batched_runner(fn: Callable, needs: Callable, default: Callable, capacities: tuple[float, ...],
@@ -103,7 +103,8 @@ def where_needed(fn: Callable, needs: Callable, default: Callable,
         default: per item, the result where `fn` need not run (same structure as `fn`'s).
         capacities: fractions of the batch: under `vmap` over B items, `fn` runs on a gathered
             sub-batch of the smallest `ceil(capacity * B)` that holds every item needing it,
-            and on all B when none does (each size is a program of its own).
+            on all B when none holds them, and not at all when no item needs it (each size is
+            a program of its own).
 
     The three functions may close over constants only: a traced value (a batched one above
     all) must come in through `x`. Forward-mode differentiation works; reverse mode does not

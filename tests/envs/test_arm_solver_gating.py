@@ -10,6 +10,7 @@ import numpy as np
 from specrl_jax.envs.arm import model as arm_model
 from specrl_jax.envs.arm.env import ACTION_SCALE
 from specrl_jax.envs.arm.physics import Physics, PhysicsState
+from specrl_jax.envs.zone import small_linalg
 
 DISTMAX = 0.5
 
@@ -56,30 +57,15 @@ def test_contact_reach_bounds_the_distance_of_every_pair():
 def test_gathered_step_matches_the_step_that_solves_every_arm():
     """One env step of 32 arms, 12 starting on the table or floor (a link up to 1 cm deep)
     and 20 free: gathering them into 16 slots (capacities 0.25 and 0.5), or with 10 slots
-    (capacity 0.3) solving every arm while more than 10 need it and gathering after, lands where the step that runs MuJoCo's solver on every arm does, to float
-    rounding (free arms take MuJoCo's unconstrained acceleration exactly, the solver's to its
+    (capacity 0.3) solving every arm while more than 10 need it and gathering after, lands
+    where the step that runs MuJoCo's solver on every arm does, to float rounding (free arms take MuJoCo's unconstrained acceleration exactly, the solver's to its
     tolerance)."""
     model = arm_model.load_model()
-    data = mujoco.MjData(model)
-    rng = np.random.default_rng(3)
-    low, high = model.jnt_range[:, 0], model.jnt_range[:, 1]
-    touching, free = [], []
-    while len(touching) < 12 or len(free) < 20:
-        data.qpos[:] = rng.uniform(low, high)
-        mujoco.mj_forward(model, data)
-        depth = data.contact.dist[:data.ncon].min() if data.ncon else np.inf
-        if -0.01 < depth < 0 and len(touching) < 12:
-            touching.append(data.qpos.copy())
-        elif depth > 0.05 and len(free) < 20:
-            free.append(data.qpos.copy())
-    qpos = jnp.asarray(np.concatenate([touching, free]), jnp.float32)
-    zeros = jnp.zeros_like(qpos)
-    qvel = jnp.asarray(rng.uniform(-1, 1, qpos.shape), jnp.float32)
-    state = PhysicsState(qpos=qpos, qvel=qvel, qacc_warmstart=zeros, qfrc_constraint=zeros)
-    action = jnp.asarray(rng.uniform(-1, 1, qpos.shape), jnp.float32)
+    state, action = _touching_and_free(model, 12, 20)
     after = {}
     for capacity in (None, (0.25, 0.5), (0.3,)):
-        physics = Physics(model, arm_model.FORCE_LIMITS, solve_capacities=capacity)
+        physics = Physics(model, arm_model.FORCE_LIMITS, solve_capacities=capacity,
+                          solve_contacts=None)  # the next test checks the nearest contacts
         step = jax.jit(jax.vmap(lambda s, a: physics.step(s, s.qpos + ACTION_SCALE * a)))
         after[capacity] = step(state, action)
     for capacity in ((0.25, 0.5), (0.3,)):
@@ -87,3 +73,67 @@ def test_gathered_step_matches_the_step_that_solves_every_arm():
         np.testing.assert_allclose(after[capacity].qvel, after[None].qvel, atol=5e-4)
     moved = np.abs(np.asarray(after[None].qfrc_constraint[:12])).max(1)
     assert (moved > 0).sum() >= 4  # the table still pushes on touching arms at the end
+
+
+def test_solve_over_the_nearest_contacts_matches_the_solve_over_all():
+    """One substep's constraint solve of 16 arms on the table (1 to 8 active contacts each) and
+    4 free: over the 8 contacts nearest their margin it gives the accelerations and constraint
+    forces of the solve over all 52 to float rounding (1e-4 of the largest acceleration: the
+    rows it drops are zero). With room
+    for only 2, the arms with more active contacts take the solve over all of them (and keeping
+    only 2 alone would be wrong for them)."""
+    model = arm_model.load_model()
+    state, action = _touching_and_free(model, 16, 4, seed=4)
+    physics = {k: Physics(model, arm_model.FORCE_LIMITS, solve_capacities=None, solve_contacts=k)
+               for k in (None, 8, 2)}
+    reference = physics[None]
+
+    def collided(s, a):
+        data = reference.data(s).replace(qacc_warmstart=s.qacc_warmstart)
+        data = reference.accelerate(data, s.qpos + ACTION_SCALE * a, s.qfrc_constraint)
+        return reference.collision.collide(reference.model, data)
+
+    def solves(s, a):
+        data = collided(s, a)
+        contact = data._impl.contact
+        return {"all": reference._solve_all(data), "8": physics[8]._solve(data),
+                "2": physics[2]._solve(data), "2 alone": physics[2]._solve_nearest(data),
+                "active": jnp.sum(contact.dist < contact.includemargin)}
+
+    with small_linalg.small_cholesky():
+        out = jax.jit(jax.vmap(solves))(state, action)
+    active = np.asarray(out["active"])
+    assert (active[:16] >= 1).all() and (active[16:] == 0).all()
+    assert (active == 8).sum() >= 2 and (active <= 2).sum() >= 2  # both paths of `_solve`
+    qacc, qfrc = map(np.asarray, out["all"])
+    assert np.abs(qfrc[:16]).max() > 1.0  # the contacts push
+    scale = np.abs(qacc).max(1, keepdims=True)
+    for k in ("8", "2"):
+        for got, want in zip(out[k], (qacc, qfrc)):
+            assert (np.abs(np.asarray(got) - want) <= 1e-4 * scale + 1e-6).all(), k
+    wrong = np.abs(np.asarray(out["2 alone"][0]) - qacc).max(1)
+    assert wrong[active > 2].max() > 0.1 * scale.max()
+
+
+def _touching_and_free(model: mujoco.MjModel, touching: int, free: int, seed: int = 3
+                       ) -> tuple[PhysicsState, jax.Array]:
+    """Arm states (random joint angles within the limits and velocities in [-1, 1]) with
+    `touching` arms on the table or floor (a link up to 1 cm deep) then `free` arms at least
+    5 cm clear, and uniform random actions."""
+    data = mujoco.MjData(model)
+    rng = np.random.default_rng(seed)
+    low, high = model.jnt_range[:, 0], model.jnt_range[:, 1]
+    on, off = [], []
+    while len(on) < touching or len(off) < free:
+        data.qpos[:] = rng.uniform(low, high)
+        mujoco.mj_forward(model, data)
+        depth = data.contact.dist[:data.ncon].min() if data.ncon else np.inf
+        if -0.01 < depth < 0 and len(on) < touching:
+            on.append(data.qpos.copy())
+        elif depth > 0.05 and len(off) < free:
+            off.append(data.qpos.copy())
+    qpos = jnp.asarray(np.concatenate([on, off]), jnp.float32)
+    zeros = jnp.zeros_like(qpos)
+    qvel = jnp.asarray(rng.uniform(-1, 1, qpos.shape), jnp.float32)
+    state = PhysicsState(qpos=qpos, qvel=qvel, qacc_warmstart=zeros, qfrc_constraint=zeros)
+    return state, jnp.asarray(rng.uniform(-1, 1, qpos.shape), jnp.float32)

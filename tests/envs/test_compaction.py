@@ -64,6 +64,42 @@ def test_one_item_and_a_loop_inside_vmap():
     np.testing.assert_allclose(got, jax.vmap(lambda x: loop(reference, x))(x), rtol=1e-6)
 
 
+def test_nothing_runs_when_no_item_needs_it():
+    """With no item needing it the expensive function does not run (counted by a callback
+    inside it); with one item it runs once, on the gathered sub-batch."""
+    calls = []
+
+    def counted(x):
+        jax.debug.callback(lambda: calls.append(1))
+        return expensive(x)
+
+    function = jax.jit(jax.vmap(where_needed(counted, needs, default, (0.25,))))
+    for first, runs in ((0.1, 0), (0.9, 1)):
+        calls.clear()
+        x = {"a": jnp.full((8, 2), 0.1).at[0, 0].set(first), "scale": jnp.ones(8)}
+        _assert_same(jax.block_until_ready(function(x)), jax.vmap(reference)(x))
+        assert len(calls) == runs
+
+
+def test_where_needed_inside_where_needed():
+    """An inner choice inside the outer expensive function (the arm's overflow solve inside its
+    gated solve) gives the nested reference under two vmaps."""
+    inner_needs = lambda x: x["a"][1] > 0.5
+    inner = where_needed(expensive, inner_needs, default, (0.25,))
+    outer = where_needed(inner, needs, lambda x: {"y": -x["a"], "z": jnp.float32(0.0)}, (0.5,))
+
+    def nested_reference(x):
+        pick = lambda c, e, d: jnp.where(c, e, d)
+        inside = jax.tree.map(lambda e, d: pick(inner_needs(x), e, d), expensive(x), default(x))
+        return jax.tree.map(lambda e, d: pick(needs(x), e, d), inside,
+                            {"y": -x["a"], "z": jnp.float32(0.0)})
+
+    x = {"a": jax.random.uniform(jax.random.key(2), (2, 16, 2)), "scale": jnp.float32(2.0)}
+    axes = ({"a": 0, "scale": None},)
+    got = jax.jit(jax.vmap(jax.vmap(outer, in_axes=axes), in_axes=axes))(x)
+    _assert_same(got, jax.vmap(jax.vmap(nested_reference, in_axes=axes), in_axes=axes)(x))
+
+
 def test_needs_must_give_one_bool_per_item():
     function = where_needed(expensive, lambda x: x["a"][:1] > 0.7, default, [0.5])
     x = {"a": jnp.ones((8, 2)), "scale": jnp.ones(8)}

@@ -13,7 +13,8 @@ is one Gauss-Seidel pass between the two, lagged by a substep, so that a motor h
 contact as it does in Bullet. MuJoCo's own soft joint limits stay in the model as a backstop;
 they act only where a contact pushes a joint past its limit. MuJoCo's collision and solver,
 most of a substep's cost, run only for the arms whose hulls come within reach of the table or
-floor or whose joints pass a limit (`Physics` says how).
+floor or whose joints pass a limit, and the solve only over the contacts nearest their margin
+(`Physics` says how).
 """
 
 from __future__ import annotations
@@ -39,6 +40,11 @@ PGS_SWEEPS = 16
 SOLVE_CAPACITIES = (0.125, 0.25)
 #: how far beyond a contact's margin an arm's distance bound still runs the solver, m
 REACH_SLACK = 1e-3
+#: the contacts (of 52) whose rows the solve keeps: the nearest; an arm with more active
+#: contacts than this runs the solve over all of them
+SOLVE_CONTACTS = 8
+#: the sub-batch size, as a share of the arms being solved, of those with more active contacts
+OVERFLOW_CAPACITY = 1 / 16
 
 
 @struct.dataclass
@@ -65,6 +71,26 @@ def spd_inverse(mass: jax.Array) -> jax.Array:
     fuses with its neighbours, where a library call would not."""
     factor = small_linalg.cho_factor(mass, lower=True)
     return small_linalg.cho_solve(factor, jnp.eye(mass.shape[-1], dtype=mass.dtype))
+
+
+def nearest_contacts(data: mjx.Data, count: int) -> mjx.Data:
+    """`data` (after collision) with only its `count` contacts of least distance beyond their
+    margin, and its constraint-row count to match. A contact outside its margin gives zero
+    constraint rows (MJX multiplies them by `dist < margin`), so dropping it changes no solve;
+    the contacts must share one `dim` (their rows are then laid out alike)."""
+    contact = data._impl.contact
+    if contact.dim.size <= count:
+        return data
+    if len(set(contact.dim.tolist())) != 1:
+        raise ValueError(f"nearest_contacts needs one contact dim; got {sorted(set(contact.dim))}")
+    keep = jax.lax.top_k(contact.includemargin - contact.dist, count)[1]
+    fields = ("dist", "pos", "frame", "includemargin", "friction", "solref", "solreffriction",
+              "solimp", "geom1", "geom2", "geom")
+    contact = contact.replace(**{f: getattr(contact, f)[keep] for f in fields},
+                              dim=contact.dim[:count], efc_address=contact.efc_address[:count])
+    rows = (data._impl.nefc - int(contact.efc_address[0])) // data._impl.ncon  # per contact
+    return data.tree_replace({"_impl.contact": contact, "_impl.ncon": count,
+                              "_impl.nefc": data._impl.nefc - rows * (data._impl.ncon - count)})
 
 
 def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: jax.Array,
@@ -127,11 +153,15 @@ class Physics:
     force, and take the unconstrained acceleration. Under `vmap` those arms are gathered into
     the smallest sub-batch of `solve_capacities` times the batch that holds them
     (`compaction.where_needed`; all arms when more need it). `solve_capacities=None` runs the
-    collision and solver on every arm, as `mjx.forward`.
+    collision and solver on every arm, as `mjx.forward`. The solve keeps the rows of the
+    `solve_contacts` contacts nearest their margin (the others' rows are zero); the arms with
+    more active contacts than that are gathered again and solved over all of them
+    (`solve_contacts=None`: every arm over all of them).
     """
 
     def __init__(self, model: mujoco.MjModel, force_limit: np.ndarray, substeps: int = SUBSTEPS,
-                 solve_capacities: tuple[float, ...] | None = SOLVE_CAPACITIES):
+                 solve_capacities: tuple[float, ...] | None = SOLVE_CAPACITIES,
+                 solve_contacts: int | None = SOLVE_CONTACTS):
         self.mj_model = model
         self.model = mjx.put_model(model, impl="jax")
         self.substeps = substeps
@@ -144,6 +174,12 @@ class Physics:
         self.collision = Collision(model, self.model)
         self._has_constraints = self._template._impl.efc_J.size > 0
         self._reach = ContactReach(model, self.model, REACH_SLACK)
+        if solve_contacts is not None and solve_contacts < 1:
+            raise ValueError(f"solve_contacts is a count of contacts (>= 1) or None (all); got "
+                             f"{solve_contacts}")
+        self.solve_contacts = solve_contacts
+        self._solve = (self._solve_all if solve_contacts is None else where_needed(
+            self._solve_all, self._too_many_contacts, self._solve_nearest, (OVERFLOW_CAPACITY,)))
         self._constrain = (self._constrain_one if solve_capacities is None else where_needed(
             self._constrain_one, self._needs_solver, self._unconstrained, solve_capacities))
 
@@ -167,14 +203,27 @@ class Physics:
 
     def solved(self, data: mjx.Data) -> mjx.Data:
         """`data` (after `accelerate`) with MuJoCo's contacts, constraint rows and solve."""
+        return self._rows_solved(self.collision.collide(self.model, data))
+
+    def _rows_solved(self, data: mjx.Data) -> mjx.Data:
         m = self.model
         # `where_needed` may trace this after `step`'s own context has closed (under an outer vmap)
         with small_linalg.small_cholesky():
-            return mjx.solve(m, mjx.make_constraint(m, self.collision.collide(m, data)))
+            return mjx.solve(m, mjx.make_constraint(m, data))
+
+    def _solve_all(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
+        data = self._rows_solved(data)
+        return data.qacc, data.qfrc_constraint
+
+    def _solve_nearest(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
+        return self._solve_all(nearest_contacts(data, self.solve_contacts))
+
+    def _too_many_contacts(self, data: mjx.Data) -> jax.Array:
+        contact = data._impl.contact
+        return jnp.sum(contact.dist < contact.includemargin) > self.solve_contacts
 
     def _constrain_one(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
-        data = self.solved(data)
-        return data.qacc, data.qfrc_constraint
+        return self._solve(self.collision.collide(self.model, data))
 
     def _needs_solver(self, data: mjx.Data) -> jax.Array:
         return self._reach.may_touch(data) | self._reach.past_limit(data.qpos)
@@ -224,4 +273,5 @@ class Physics:
             return jax.lax.fori_loop(0, self.substeps, substep, state)
 
 
-__all__ = ["MOTOR_RATE", "SUBSTEPS", "Physics", "PhysicsState", "motor_torque", "spd_inverse"]
+__all__ = ["MOTOR_RATE", "SUBSTEPS", "Physics", "PhysicsState", "motor_torque", "nearest_contacts",
+           "spd_inverse"]
