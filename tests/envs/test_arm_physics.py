@@ -154,9 +154,12 @@ C_CHECKED = [*range(0, 48, 4), 48, 49]
 @functools.cache
 def _contact_step_mjx(**option):
     """float32[50, 7] joint angles after one MJX env step from `_contact_starts` (zero warm
-    start) on `_contact_model(**option)`."""
+    start) on `_contact_model(**option)`, every arm solving over every contact (the solver
+    settings under test are MuJoCo's; test_arm_solver_gating checks the gated solve over the
+    nearest contacts against this one)."""
     starts, qvel, targets = _contact_starts()
-    physics = Physics(_contact_model(**option), arm_model.FORCE_LIMITS)
+    physics = Physics(_contact_model(**option), arm_model.FORCE_LIMITS, solve_capacities=None,
+                      solve_contacts=None)
     zeros = jnp.zeros(starts.shape, jnp.float32)
     state = PhysicsState(qpos=jnp.asarray(starts, jnp.float32), qvel=jnp.asarray(qvel, jnp.float32),
                          qacc_warmstart=zeros, qfrc_constraint=zeros)
