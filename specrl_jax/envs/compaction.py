@@ -4,9 +4,9 @@
 `needs(x)`, else `default(x)`. Called on one item it is a `lax.cond`. Under `vmap` a `cond` would
 run both branches on every item; here the batching rule instead gathers the items that need `fn`
 into the smallest sub-batch of the fixed sizes `ceil(capacity * B)` that holds them all, runs
-`fn` on those only and scatters the results back, runs `fn` on the whole batch when more items
-need it than the largest holds, and not at all when none does. Nested `vmap`s (seeds x envs)
-are merged into one batch first. An item's result does not depend on which path ran or on the
+`fn` on those only and scatters the results back, runs the largest size over them in turn (a
+loop) when more need it than it holds, and runs nothing when none does. Nested `vmap`s (seeds x
+envs) are merged into one batch first. An item's result does not depend on which path ran or on the
 other items in its batch.
 """
 
@@ -34,24 +34,29 @@ def _run_batch(fn: Callable, needs: Callable, default: Callable, capacities: tup
     size = need.shape[0]
     fallback = jax.vmap(default, in_axes=(axes,))(x)
 
-    def everyone():
-        out = jax.vmap(fn, in_axes=(axes,))(x)
-        pick = lambda o, d: jnp.where(need.reshape((size,) + (1,) * (o.ndim - 1)), o, d)
-        return jax.tree.map(pick, out, fallback)
-
-    def gathered(slots: int) -> Callable:
+    def gathered(slots: int, loop: bool) -> Callable:
+        """`fn` on the needing items, `slots` at a time: once, or (`loop`) until all are done."""
         def run():
-            index = jnp.nonzero(need, size=slots, fill_value=size)[0]  # `size`: an empty slot
-            take = jnp.minimum(index, size - 1)
-            sub = jax.tree.map(lambda leaf, axis: leaf if axis is None else leaf[take], x, axes)
-            out = jax.vmap(fn, in_axes=(axes,))(sub)
-            return jax.tree.map(lambda d, o: d.at[index].set(o, mode="drop"), fallback, out)
+            order = jnp.nonzero(need, size=size + slots, fill_value=size)[0]  # `size`: empty
+
+            def chunk(start, result):
+                index = jax.lax.dynamic_slice(order, (start,), (slots,))
+                take = jnp.minimum(index, size - 1)
+                sub = jax.tree.map(lambda leaf, axis: leaf if axis is None else leaf[take], x, axes)
+                out = jax.vmap(fn, in_axes=(axes,))(sub)
+                return jax.tree.map(lambda r, o: r.at[index].set(o, mode="drop"), result, out)
+
+            if not loop:
+                return chunk(0, fallback)
+            return jax.lax.while_loop(lambda c: c[0] < count,
+                                      lambda c: (c[0] + slots, chunk(c[0], c[1])), (0, fallback))[1]
         return run
 
-    tiers = sorted({max(1, math.ceil(c * size)) for c in capacities} - {size})
+    tiers = sorted({max(1, math.ceil(c * size)) for c in capacities})
     count = jnp.sum(need)
-    tier = jnp.sum(count > jnp.asarray([0, *tiers]))  # none, the smallest tier that fits, or all
-    return jax.lax.switch(tier, [lambda: fallback, *map(gathered, tiers), everyone])
+    tier = jnp.sum(count > jnp.asarray([0, *tiers[:-1]]))  # none, or the smallest that fits
+    runs = [gathered(slots, loop=slots == tiers[-1]) for slots in tiers]
+    return jax.lax.switch(tier, [lambda: fallback, *runs])
 
 
 def _batched_runner(fn: Callable, needs: Callable, default: Callable, capacities: tuple[float, ...],
@@ -103,8 +108,8 @@ def where_needed(fn: Callable, needs: Callable, default: Callable,
         default: per item, the result where `fn` need not run (same structure as `fn`'s).
         capacities: fractions of the batch: under `vmap` over B items, `fn` runs on a gathered
             sub-batch of the smallest `ceil(capacity * B)` that holds every item needing it,
-            on all B when none holds them, and not at all when no item needs it (each size is
-            a program of its own).
+            on the largest size in turn when none holds them, and not at all when no item
+            needs it (each size is a program of its own).
 
     The three functions may close over constants only: a traced value (a batched one above
     all) must come in through `x`. Forward-mode differentiation works; reverse mode does not

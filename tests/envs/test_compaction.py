@@ -33,7 +33,8 @@ def _assert_same(a, b):
 @pytest.mark.parametrize("capacities", [(0.2, 0.5), (0.1,)])
 def test_two_vmaps_merge_into_one_batch(capacities):
     """3 x 20 items, 18 needing: with sub-batches of 12 and 30 the expensive function runs on a
-    gathered 30 of the 60, with only 6 (too few) on all 60; the results are the reference's."""
+    gathered 30 of the 60, with only 6 (too few) on 6 at a time, never on all 60; the results
+    are the reference's."""
     a = jax.random.uniform(jax.random.key(0), (3, 20, 4))
     inner = {"a": 0, "scale": None}
     for scale in (jnp.float32(2.0), jnp.arange(3.0)):  # unbatched, or batched by the outer vmap
@@ -46,7 +47,8 @@ def test_two_vmaps_merge_into_one_batch(capacities):
         assert int(jnp.sum(a[..., 0] > 0.7)) == 18
         program = str(jax.make_jaxpr(function)(x))
         assert ("f32[30,4] = sin" in program) == (0.5 in capacities)  # a gathered 30 of 60
-        assert "f32[60,4] = sin" in program  # the whole-batch fallback
+        assert ("f32[6,4] = sin" in program) == (0.1 in capacities)  # 6 at a time, in a loop
+        assert "f32[60,4] = sin" not in program
 
 
 def test_one_item_and_a_loop_inside_vmap():
@@ -64,9 +66,10 @@ def test_one_item_and_a_loop_inside_vmap():
     np.testing.assert_allclose(got, jax.vmap(lambda x: loop(reference, x))(x), rtol=1e-6)
 
 
-def test_nothing_runs_when_no_item_needs_it():
+def test_runs_counted_by_how_many_items_need_it():
     """With no item needing it the expensive function does not run (counted by a callback
-    inside it); with one item it runs once, on the gathered sub-batch."""
+    inside it); with one item it runs once, on the gathered sub-batch of 2; with 5 items, three
+    times (2 + 2 + 1)."""
     calls = []
 
     def counted(x):
@@ -74,9 +77,9 @@ def test_nothing_runs_when_no_item_needs_it():
         return expensive(x)
 
     function = jax.jit(jax.vmap(where_needed(counted, needs, default, (0.25,))))
-    for first, runs in ((0.1, 0), (0.9, 1)):
+    for needing, runs in ((0, 0), (1, 1), (5, 3)):
         calls.clear()
-        x = {"a": jnp.full((8, 2), 0.1).at[0, 0].set(first), "scale": jnp.ones(8)}
+        x = {"a": jnp.full((8, 2), 0.1).at[:needing, 0].set(0.9), "scale": jnp.ones(8)}
         _assert_same(jax.block_until_ready(function(x)), jax.vmap(reference)(x))
         assert len(calls) == runs
 
