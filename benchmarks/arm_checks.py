@@ -191,24 +191,29 @@ def settings_timing(models: dict[str, mujoco.MjModel | Physics], baseline: str, 
 
 
 def capacity_timing(num_envs: int, num_steps: int, capacities: list[float | str],
-                    contacts: list[int | None] = ()) -> dict:
+                    pairs: list[int | None] = ()) -> dict:
     """The physics step with the collision and solver gathered for the arms that need them, one
     sub-batch size per run (`Physics(solve_capacities=(c,))`; "default": the model's
-    `SOLVE_CAPACITIES`), and at the default sizes with the solve over each of `contacts`
-    nearest contacts (None: all), against every arm solving over every contact ("None"), under
+    `SOLVE_CAPACITIES`), and at the default sizes with the collision and solve over each of
+    `pairs` nearest contact pairs (None: all), against every arm over every pair ("None"), under
     uniform random and saturated actions (`settings_timing`); "None"'s `probe_by_step` is the
     share of arms that needed the solver (`ContactReach`) at each step."""
     model = arm_model.load_model()
     tiers = lambda c: SOLVE_CAPACITIES if c == "default" else (c,)
     physics = {"None": Physics(model, arm_model.FORCE_LIMITS, solve_capacities=None,
-                               solve_contacts=None),
+                               solve_pairs=None),
                **{str(c): Physics(model, arm_model.FORCE_LIMITS, solve_capacities=tiers(c))
                   for c in capacities},
-               **{f"default, {k or 'all'} contacts": Physics(model, arm_model.FORCE_LIMITS,
-                                                              solve_contacts=k)
-                  for k in contacts}}
+               **{f"default, {k or 'all'} pairs": Physics(model, arm_model.FORCE_LIMITS,
+                                                           solve_pairs=k)
+                  for k in pairs}}
     gated = physics[str(capacities[0])]
-    share = jax.jit(lambda s: jnp.mean(jax.vmap(lambda x: gated._needs_solver(gated.data(x)))(s)))
+
+    def needs(state: PhysicsState) -> jax.Array:
+        data = gated.data(state)
+        return gated._needs_solver((data, gated._reach.gaps(data)))
+
+    share = jax.jit(lambda s: jnp.mean(jax.vmap(needs)(s)))
     key = jax.random.key(4)
     actions = {"uniform": np.asarray(jax.random.uniform(key, (num_steps, num_envs, 7),
                                                         minval=-1, maxval=1)),
@@ -712,9 +717,9 @@ def main() -> None:
                         help="iterations, iter_vs_c: Newton tolerances (at 100 iterations)")
     parser.add_argument("--capacities", nargs="+", default=["default", "0.25"],
                         help="capacity: sub-batch shares to time against None (every arm)")
-    parser.add_argument("--contacts", nargs="*", default=[],
-                        help="capacity: solves over this many nearest contacts ('all': every "
-                             "one) to time at the default sub-batch sizes")
+    parser.add_argument("--pairs", nargs="*", default=[],
+                        help="capacity: collisions and solves over this many nearest contact "
+                             "pairs ('all': every one) to time at the default sub-batch sizes")
     parser.add_argument("--c-batch", type=int, default=256)
     parser.add_argument("--c-steps", type=int, default=150)
     parser.add_argument("--c-stride", type=int, default=5,
@@ -769,8 +774,8 @@ def main() -> None:
     if "capacity" in args.parts:
         log(f"capacity: {args.ls_batch} arms x {args.ls_steps} steps")
         shares = [c if c == "default" else float(c) for c in args.capacities]
-        contacts = [None if k == "all" else int(k) for k in args.contacts]
-        results["capacity"] = capacity_timing(args.ls_batch, args.ls_steps, shares, contacts)
+        pairs = [None if k == "all" else int(k) for k in args.pairs]
+        results["capacity"] = capacity_timing(args.ls_batch, args.ls_steps, shares, pairs)
         save()
     if "nan" in args.parts:
         for env_id in args.envs:

@@ -1,14 +1,14 @@
 #!/usr/bin/env bash
 # The arm world on one lent GPU, within ARM_GPU_SECONDS (default 560 s), compile included. With the
-# gated collision and the solve over the nearest contacts (sessions 13-14) the env step compiles in
-# about 75 s per batch size on an H100, so the parts are: env throughput of
+# gated collision and solve (sessions 13-15) the env step compiled in about 75-84 s per batch size
+# on an H100 in session 14 (fewer programs since session 15), so the parts are: env throughput of
 # PandaLTLReach0Joints-v0 (batches 32,768 and 65,536), then PandaLTLReach1Joints-v0 (32,768;
 # 65,536 runs out of an H100's memory), with auto-reset from a layout bank (5 steps a call);
 # where a substep's time goes (`arm_stages.py`, 4,096 arms at states a uniform rollout reaches);
 # the NaN check (4,096 arms x 100 saturated steps per mode; the issue's 1,000 steps take about
 # 3 minutes a mode, run them apart); the tracking gains (256 arms x 300 steps) if time is left.
 # arm_checks.py's `--parts iterations` and `--parts capacity` time the solver's settings, the
-# gating's sub-batch sizes and the solve's contact count when needed.
+# gating's sub-batch sizes and the solve's pair count when needed.
 #
 # Each part has its own time limit, cut further so that the whole script ends by ARM_GPU_SECONDS;
 # a part with under 20 s left is skipped. Parts share JAX's persistent compilation cache. Writes

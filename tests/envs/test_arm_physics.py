@@ -159,7 +159,7 @@ def _contact_step_mjx(**option):
     nearest contacts against this one)."""
     starts, qvel, targets = _contact_starts()
     physics = Physics(_contact_model(**option), arm_model.FORCE_LIMITS, solve_capacities=None,
-                      solve_contacts=None)
+                      solve_pairs=None)
     zeros = jnp.zeros(starts.shape, jnp.float32)
     state = PhysicsState(qpos=jnp.asarray(starts, jnp.float32), qvel=jnp.asarray(qvel, jnp.float32),
                          qacc_warmstart=zeros, qfrc_constraint=zeros)

@@ -8,6 +8,7 @@ import mujoco
 import numpy as np
 
 from specrl_jax.envs.arm import model as arm_model
+from specrl_jax.envs.arm.collision import keep_contacts
 from specrl_jax.envs.arm.env import ACTION_SCALE
 from specrl_jax.envs.arm.physics import Physics, PhysicsState
 from specrl_jax.envs.zone import small_linalg
@@ -24,8 +25,12 @@ def test_contact_reach_bounds_the_distance_of_every_pair():
     reach = physics._reach
     rng = np.random.default_rng(0)
     qs = rng.uniform(model.jnt_range[:, 0], model.jnt_range[:, 1], (300, 7)).astype(np.float32)
-    probe = jax.jit(jax.vmap(lambda q: (reach.gaps(physics.data(physics.init(q))),
-                                        physics._needs_solver(physics.data(physics.init(q))))))
+    def probe(q):
+        data = physics.data(physics.init(q))
+        gaps = reach.gaps(data)
+        return gaps, physics._needs_solver((data, gaps))
+
+    probe = jax.jit(jax.vmap(probe))
     gaps, needs = map(np.asarray, probe(jnp.asarray(qs)))
     data = mujoco.MjData(model)
     distance = np.zeros_like(gaps)
@@ -57,15 +62,15 @@ def test_contact_reach_bounds_the_distance_of_every_pair():
 def test_gathered_step_matches_the_step_that_solves_every_arm():
     """One env step of 32 arms, 12 starting on the table or floor (a link up to 1 cm deep)
     and 20 free: gathering them into 16 slots (capacities 0.25 and 0.5), or with 10 slots
-    (capacity 0.3) solving every arm while more than 10 need it and gathering after, lands
-    where the step that runs MuJoCo's solver on every arm does, to float rounding (free arms take MuJoCo's unconstrained acceleration exactly, the solver's to its
-    tolerance)."""
+    (capacity 0.3) running 10 at a time in turn while more than 10 need it, lands where the
+    step that runs MuJoCo's solver on every arm does, to float rounding (free arms take
+    MuJoCo's unconstrained acceleration exactly, the solver's to its tolerance)."""
     model = arm_model.load_model()
     state, action = _touching_and_free(model, 12, 20)
     after = {}
     for capacity in (None, (0.25, 0.5), (0.3,)):
         physics = Physics(model, arm_model.FORCE_LIMITS, solve_capacities=capacity,
-                          solve_contacts=None)  # the next test checks the nearest contacts
+                          solve_pairs=None)  # the next test checks the nearest pairs
         step = jax.jit(jax.vmap(lambda s, a: physics.step(s, s.qpos + ACTION_SCALE * a)))
         after[capacity] = step(state, action)
     for capacity in ((0.25, 0.5), (0.3,)):
@@ -75,44 +80,58 @@ def test_gathered_step_matches_the_step_that_solves_every_arm():
     assert (moved > 0).sum() >= 4  # the table still pushes on touching arms at the end
 
 
-def test_solve_over_the_nearest_contacts_matches_the_solve_over_all():
-    """One substep's constraint solve of 16 arms on the table (1 to 8 active contacts each) and
-    4 free: over the 8 contacts nearest their margin it gives the accelerations and constraint
-    forces of the solve over all 52 to float rounding (1e-4 of the largest acceleration: the
-    rows it drops are zero). With room
-    for only 2, the arms with more active contacts take the solve over all of them (and keeping
-    only 2 alone would be wrong for them)."""
+def test_solve_over_the_nearest_pairs_matches_the_solve_over_all():
+    """One substep's constraint solve of 16 arms on the table (1 or 2 contact pairs within
+    reach, 1 to 8 active contacts) and 4 free. The contacts `collide_pairs` computes for an
+    arm's 2 pairs of least distance bound are MuJoCo's (MJX's collision), and the solve over
+    their rows alone gives the accelerations and constraint forces of the solve over all 13
+    pairs to float rounding (1e-4 of the largest acceleration: the rows it drops are zero). With
+    room for one pair, the arms with two take the solve over every pair (and one pair alone
+    would be wrong for them)."""
     model = arm_model.load_model()
     state, action = _touching_and_free(model, 16, 4, seed=4)
-    physics = {k: Physics(model, arm_model.FORCE_LIMITS, solve_capacities=None, solve_contacts=k)
-               for k in (None, 8, 2)}
+    physics = {k: Physics(model, arm_model.FORCE_LIMITS, solve_capacities=None, solve_pairs=k)
+               for k in (None, 2, 1)}
     reference = physics[None]
-
-    def collided(s, a):
-        data = reference.data(s).replace(qacc_warmstart=s.qacc_warmstart)
-        data = reference.accelerate(data, s.qpos + ACTION_SCALE * a, s.qfrc_constraint)
-        return reference.collision.collide(reference.model, data)
+    collision, m = reference.collision, reference.model
 
     def solves(s, a):
-        data = collided(s, a)
-        contact = data._impl.contact
-        return {"all": reference._solve_all(data), "8": physics[8]._solve(data),
-                "2": physics[2]._solve(data), "2 alone": physics[2]._solve_nearest(data),
-                "active": jnp.sum(contact.dist < contact.includemargin)}
+        data = reference.data(s).replace(qacc_warmstart=s.qacc_warmstart)
+        data = reference.accelerate(data, s.qpos + ACTION_SCALE * a, s.qfrc_constraint)
+        x = (data, reference._reach.gaps(data))
+        pairs = jax.lax.top_k(-x[1], 2)[1]
+        collided = collision.collide(m, data)
+        kept = keep_contacts(collided, jnp.asarray(collision.pair_rows)[pairs].reshape(-1))
+        solved = reference._rows_solved(kept)
+        contact = collided._impl.contact
+        return {"all": reference._solve(x), "2 pairs": (solved.qacc, solved.qfrc_constraint),
+                "1": physics[1]._solve(x), "1 alone": physics[1]._solve_nearest_pairs(x),
+                "in reach": reference._pairs_in_reach(x),
+                "active": jnp.sum(contact.dist < contact.includemargin),
+                "kept": kept._impl.contact,
+                "computed": collision.collide_pairs(m, data, pairs)._impl.contact}
 
     with small_linalg.small_cholesky():
         out = jax.jit(jax.vmap(solves))(state, action)
-    active = np.asarray(out["active"])
+    active, in_reach = np.asarray(out["active"]), np.asarray(out["in reach"])
     assert (active[:16] >= 1).all() and (active[16:] == 0).all()
-    assert (active == 8).sum() >= 2 and (active <= 2).sum() >= 2  # both paths of `_solve`
+    assert (active == 8).sum() >= 2 and (in_reach == 2).sum() >= 2 and (in_reach == 1).sum() >= 2
+    for field in ("dist", "pos"):  # MJX repeats one corner to fill a pair's 4 contacts: which one
+        # can differ with rounding between programs, so compare the distinct contacts
+        for kept, computed in zip(np.asarray(getattr(out["kept"], field)),
+                                  np.asarray(getattr(out["computed"], field))):
+            kept, computed = kept.reshape(2, 4, -1), computed.reshape(2, 4, -1)
+            gap = np.abs(kept[:, :, None] - computed[:, None]).max(-1)  # [pair, kept, computed]
+            assert gap.min(2).max() < 1e-5 and gap.min(1).max() < 1e-5, field
     qacc, qfrc = map(np.asarray, out["all"])
     assert np.abs(qfrc[:16]).max() > 1.0  # the contacts push
     scale = np.abs(qacc).max(1, keepdims=True)
-    for k in ("8", "2"):
-        for got, want in zip(out[k], (qacc, qfrc)):
-            assert (np.abs(np.asarray(got) - want) <= 1e-4 * scale + 1e-6).all(), k
-    wrong = np.abs(np.asarray(out["2 alone"][0]) - qacc).max(1)
-    assert wrong[active > 2].max() > 0.1 * scale.max()
+    for got, want in zip(out["2 pairs"], (qacc, qfrc)):
+        assert (np.abs(np.asarray(got) - want) <= 1e-4 * scale + 1e-6).all()
+    for got, want in zip(out["1"], (qacc, qfrc)):  # those with 2 pairs: the solve over every pair
+        assert (np.abs(np.asarray(got) - want) <= 1e-4 * scale + 1e-6)[in_reach > 1].all()
+    wrong = np.abs(np.asarray(out["1 alone"][0]) - qacc).max(1)
+    assert wrong[in_reach > 1].max() > 0.1 * scale.max()
 
 
 def _touching_and_free(model: mujoco.MjModel, touching: int, free: int, seed: int = 3

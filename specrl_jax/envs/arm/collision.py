@@ -14,6 +14,8 @@ arg-max of the separating-axis test. The padding adds arithmetic (every box-hull
 
 from __future__ import annotations
 
+from typing import Callable
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -72,13 +74,43 @@ class Collision:
         self.meshes = (pad_convex([model._impl.mesh_convex[i] for i in meshes])
                        if meshes else None)
         self.geoms = {key: np.asarray([p[:2] for p in pairs]) for key, pairs in groups.items()}
+        self.order = sorted(self.keys, key=lambda k: k.condim)  # stable: MJX's contact order
+        self._pair_tables(mj_model, groups)
 
-    def _batched(self, m: mjx.Model, d: mjx.Data, kind: tuple, keys: list) -> dict:
-        """dist, pos, frame of every pair of one kind, split back by MJX group."""
+    def _pair_tables(self, mj_model: mujoco.MjModel, groups: dict) -> None:
+        """What `collide_pairs` looks up by contact pair (MuJoCo's `pair` index): its contact
+        rows in `collide`'s order, and per kind of pair its geoms and mesh slot (a pair of
+        another kind takes the kind's first pair, whose result is then not used)."""
+        ncons = {collision_driver._COLLISION_FUNC[k.types].ncon for k in self.keys}
+        batched = {k for keys in self.batches.values() for k in keys}
+        pair_ids = [p[2] for k in self.keys for p in groups[k]]
+        self.ncon_per_pair = ncons.pop() if len(ncons) == 1 else None
+        self.supports_pairs = (self.ncon_per_pair is not None and set(self.keys) == batched
+                               and sorted(pair_ids) == list(range(mj_model.npair)))
+        if not self.supports_pairs:
+            return
+        rows, start = np.zeros((mj_model.npair, self.ncon_per_pair), np.int32), 0
+        for key in self.order:
+            for pair in groups[key]:
+                rows[pair[2]] = start + np.arange(self.ncon_per_pair)
+                start += self.ncon_per_pair
+        self.pair_rows = rows
+        self.pair_kind = np.zeros(mj_model.npair, np.int32)
+        self.kind_geoms, self.kind_slots = [], []
+        for index, (kind, keys) in enumerate(self.batches.items()):
+            members = [(pair, key) for key in keys for pair in groups[key]]
+            geoms = np.tile(np.asarray(members[0][0][:2]), (mj_model.npair, 1))
+            slots = np.full(mj_model.npair, self.slot[members[0][1].data_ids[1]])
+            for pair, key in members:
+                self.pair_kind[pair[2]] = index
+                geoms[pair[2]], slots[pair[2]] = pair[:2], self.slot[key.data_ids[1]]
+            self.kind_geoms.append(geoms)
+            self.kind_slots.append(slots)
+
+    def _one_pair(self, m: mjx.Model, d: mjx.Data, kind: tuple) -> Callable:
+        """`(geoms int[2], mesh slot) -> (dist, pos, frame)` of one pair of `kind`."""
         first, second, condim = kind
         func = collision_driver._COLLISION_FUNC[(first, second)]
-        geoms = np.concatenate([self.geoms[k] for k in keys])
-        slots = np.concatenate([[self.slot[k.data_ids[1]]] * len(self.geoms[k]) for k in keys])
         slot_key = FunctionKey((first, second), (-1, 0), condim)
 
         def one(pair: jax.Array, slot: jax.Array):
@@ -86,6 +118,13 @@ class Collision:
             m_one = m.tree_replace({"_impl.mesh_convex": (mesh,)})
             return func(m_one, d, slot_key, pair[None])
 
+        return one
+
+    def _batched(self, m: mjx.Model, d: mjx.Data, kind: tuple, keys: list) -> dict:
+        """dist, pos, frame of every pair of one kind, split back by MJX group."""
+        geoms = np.concatenate([self.geoms[k] for k in keys])
+        slots = np.concatenate([[self.slot[k.data_ids[1]]] * len(self.geoms[k]) for k in keys])
+        one = self._one_pair(m, d, kind)
         dist, pos, frame = jax.vmap(one)(jnp.asarray(geoms), jnp.asarray(slots))
         out, start = {}, 0
         for key in keys:
@@ -107,16 +146,62 @@ class Collision:
             if key not in results:
                 func = collision_driver._COLLISION_FUNC[key.types]
                 results[key] = func(m, d, key, groups[key].geom)
+        dist, pos, frame = (jnp.concatenate(x) for x in zip(*(results[k] for k in self.order)))
+        contact = self._parameters(groups).replace(dist=dist, pos=pos, frame=frame)
+        return d.tree_replace({"_impl.contact": contact})
+
+    def _parameters(self, groups: dict):
+        """MJX's contacts in `collide`'s order, without their dist, pos and frame."""
         contacts = []
-        for key in sorted(self.keys, key=lambda k: k.condim):  # stable: MJX's order
+        for key in self.order:
             contact = groups[key]
             ncon = collision_driver._COLLISION_FUNC[key.types].ncon
             if ncon > 1:
                 contact = jax.tree.map(lambda x, r=ncon: jnp.repeat(x, r, axis=0), contact)
-            dist, pos, frame = results[key]
-            contacts.append(contact.replace(dist=dist, pos=pos, frame=frame))
-        contact = jax.tree.map(lambda *x: jnp.concatenate(x), *contacts)
-        return d.tree_replace({"_impl.contact": contact})
+            contacts.append(contact)
+        return jax.tree.map(lambda *x: jnp.concatenate(x), *contacts)
+
+    def collide_pairs(self, m: mjx.Model, d: mjx.Data, pairs: jax.Array) -> mjx.Data:
+        """`data` with the contacts of the contact pairs `pairs` only (int[K], MuJoCo's `pair`
+        indices; `ncon_per_pair` contacts each, in that order), as `collide` computes them, and
+        the constraint-row count to match: the solve over them is the solve over every contact
+        when the other pairs are beyond their margin (their rows are zero)."""
+        if not self.supports_pairs:
+            raise ValueError("collide_pairs needs every contact pair to be primitive-mesh, one "
+                             "contact count per pair, and every pair explicit")
+        results = []
+        for kind, geoms, slots in zip(self.batches, self.kind_geoms, self.kind_slots):
+            one = self._one_pair(m, d, kind)
+            results.append(jax.vmap(one)(jnp.asarray(geoms)[pairs], jnp.asarray(slots)[pairs]))
+        kind = jnp.asarray(self.pair_kind)[pairs]
+        dist, pos, frame = jax.tree.map(
+            lambda *r: jnp.select([kind.reshape((-1,) + (1,) * (r[0].ndim - 1)) == i
+                                   for i in range(len(r))], r), *results)
+        rows = jnp.asarray(self.pair_rows)[pairs].reshape(-1)
+        groups = collision_driver._contact_groups(m, d)
+        full = d.tree_replace({"_impl.contact": self._parameters(groups)})
+        kept = keep_contacts(full, rows)
+        contact = kept._impl.contact.replace(dist=dist.reshape(-1), pos=pos.reshape(-1, 3),
+                                             frame=frame.reshape(-1, 3, 3))
+        return kept.tree_replace({"_impl.contact": contact})
+
+
+def keep_contacts(data: mjx.Data, rows: jax.Array) -> mjx.Data:
+    """`data` with only the contacts `rows` (int[K], of `data._impl.contact`) and its
+    constraint-row count to match. The contacts must share one `dim` (their rows are then laid
+    out alike); the solve over the kept ones is the solve over all when the others are beyond
+    their margin (MJX multiplies their rows by `dist < margin`)."""
+    contact, count = data._impl.contact, rows.shape[0]
+    if len(set(np.asarray(contact.dim).tolist())) != 1:
+        raise ValueError(f"keep_contacts needs one contact dim; got {sorted(set(contact.dim))}")
+    fields = ("dist", "pos", "frame", "includemargin", "friction", "solref", "solreffriction",
+              "solimp", "geom1", "geom2", "geom")
+    contact = contact.replace(**{f: getattr(contact, f)[rows] for f in fields
+                                 if getattr(contact, f) is not None},
+                              dim=contact.dim[:count], efc_address=contact.efc_address[:count])
+    per_contact = (data._impl.nefc - int(contact.efc_address[0])) // data._impl.ncon
+    nefc = data._impl.nefc - per_contact * (data._impl.ncon - count)
+    return data.tree_replace({"_impl.contact": contact, "_impl.ncon": count, "_impl.nefc": nefc})
 
 
 class ContactReach:
@@ -173,10 +258,6 @@ class ContactReach:
         box = jnp.max(jnp.min(beyond, axis=1), axis=-1)
         return jnp.where(self.is_plane, plane, box)
 
-    def may_touch(self, data: mjx.Data) -> jax.Array:
-        """bool: whether any contact pair may be within its margin."""
-        return jnp.any(self.gaps(data) < self.reach)
-
     def past_limit(self, qpos: jax.Array) -> jax.Array:
         """bool: whether any limited joint has an active limit row (MuJoCo's `pos < 0`)."""
         angle = qpos[self.qpos_index]
@@ -185,4 +266,4 @@ class ContactReach:
         return jnp.any(self.limited & (pos < 0))
 
 
-__all__ = ["Collision", "ContactReach", "pad_convex"]
+__all__ = ["Collision", "ContactReach", "keep_contacts", "pad_convex"]

@@ -13,8 +13,8 @@ is one Gauss-Seidel pass between the two, lagged by a substep, so that a motor h
 contact as it does in Bullet. MuJoCo's own soft joint limits stay in the model as a backstop;
 they act only where a contact pushes a joint past its limit. MuJoCo's collision and solver,
 most of a substep's cost, run only for the arms whose hulls come within reach of the table or
-floor or whose joints pass a limit, and the solve only over the contacts nearest their margin
-(`Physics` says how).
+floor or whose joints pass a limit, and the collision and solve only over the contact pairs within
+that reach (`Physics` says how).
 """
 
 from __future__ import annotations
@@ -40,11 +40,11 @@ PGS_SWEEPS = 16
 SOLVE_CAPACITIES = (0.125, 0.25)
 #: how far beyond a contact's margin an arm's distance bound still runs the solver, m
 REACH_SLACK = 1e-3
-#: the contacts (of 52) whose rows the solve keeps: the nearest; an arm with more active
-#: contacts than this runs the solve over all of them
-SOLVE_CONTACTS = 8
-#: the sub-batch size, as a share of the arms being solved, of those with more active contacts
-OVERFLOW_CAPACITY = 1 / 16
+#: the contact pairs (of 13) an arm's collision and solve take: those of least distance bound;
+#: an arm with more pairs within reach runs them over every pair
+SOLVE_PAIRS = 2
+#: the sub-batch size, as a share of the batch, of the arms with more pairs within reach
+OVERFLOW_CAPACITY = 1 / 64
 
 
 @struct.dataclass
@@ -71,26 +71,6 @@ def spd_inverse(mass: jax.Array) -> jax.Array:
     fuses with its neighbours, where a library call would not."""
     factor = small_linalg.cho_factor(mass, lower=True)
     return small_linalg.cho_solve(factor, jnp.eye(mass.shape[-1], dtype=mass.dtype))
-
-
-def nearest_contacts(data: mjx.Data, count: int) -> mjx.Data:
-    """`data` (after collision) with only its `count` contacts of least distance beyond their
-    margin, and its constraint-row count to match. A contact outside its margin gives zero
-    constraint rows (MJX multiplies them by `dist < margin`), so dropping it changes no solve;
-    the contacts must share one `dim` (their rows are then laid out alike)."""
-    contact = data._impl.contact
-    if contact.dim.size <= count:
-        return data
-    if len(set(contact.dim.tolist())) != 1:
-        raise ValueError(f"nearest_contacts needs one contact dim; got {sorted(set(contact.dim))}")
-    keep = jax.lax.top_k(contact.includemargin - contact.dist, count)[1]
-    fields = ("dist", "pos", "frame", "includemargin", "friction", "solref", "solreffriction",
-              "solimp", "geom1", "geom2", "geom")
-    contact = contact.replace(**{f: getattr(contact, f)[keep] for f in fields},
-                              dim=contact.dim[:count], efc_address=contact.efc_address[:count])
-    rows = (data._impl.nefc - int(contact.efc_address[0])) // data._impl.ncon  # per contact
-    return data.tree_replace({"_impl.contact": contact, "_impl.ncon": count,
-                              "_impl.nefc": data._impl.nefc - rows * (data._impl.ncon - count)})
 
 
 def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: jax.Array,
@@ -152,16 +132,17 @@ class Physics:
     floor or pass a joint limit in the substep (`ContactReach`); the others need no constraint
     force, and take the unconstrained acceleration. Under `vmap` those arms are gathered into
     the smallest sub-batch of `solve_capacities` times the batch that holds them
-    (`compaction.where_needed`; all arms when more need it). `solve_capacities=None` runs the
-    collision and solver on every arm, as `mjx.forward`. The solve keeps the rows of the
-    `solve_contacts` contacts nearest their margin (the others' rows are zero); the arms with
-    more active contacts than that are gathered again and solved over all of them
-    (`solve_contacts=None`: every arm over all of them).
+    (`compaction.where_needed`; the largest in turn when more need it).
+    `solve_capacities=None` runs the collision and solver on every arm, as `mjx.forward`. The
+    collision and solve take the `solve_pairs` contact pairs of least distance bound (the others
+    are beyond their margin, their rows zero); the arms with more pairs within reach are
+    gathered apart (a share `OVERFLOW_CAPACITY` of the batch at a time) and run over every pair
+    (`solve_pairs=None`: every arm over every pair).
     """
 
     def __init__(self, model: mujoco.MjModel, force_limit: np.ndarray, substeps: int = SUBSTEPS,
                  solve_capacities: tuple[float, ...] | None = SOLVE_CAPACITIES,
-                 solve_contacts: int | None = SOLVE_CONTACTS):
+                 solve_pairs: int | None = SOLVE_PAIRS):
         self.mj_model = model
         self.model = mjx.put_model(model, impl="jax")
         self.substeps = substeps
@@ -174,14 +155,26 @@ class Physics:
         self.collision = Collision(model, self.model)
         self._has_constraints = self._template._impl.efc_J.size > 0
         self._reach = ContactReach(model, self.model, REACH_SLACK)
-        if solve_contacts is not None and solve_contacts < 1:
-            raise ValueError(f"solve_contacts is a count of contacts (>= 1) or None (all); got "
-                             f"{solve_contacts}")
-        self.solve_contacts = solve_contacts
-        self._solve = (self._solve_all if solve_contacts is None else where_needed(
-            self._solve_all, self._too_many_contacts, self._solve_nearest, (OVERFLOW_CAPACITY,)))
-        self._constrain = (self._constrain_one if solve_capacities is None else where_needed(
-            self._constrain_one, self._needs_solver, self._unconstrained, solve_capacities))
+        if solve_pairs is not None and not 1 <= solve_pairs <= model.npair:
+            raise ValueError(f"solve_pairs is a count of contact pairs (1 to {model.npair}) or "
+                             f"None (all); got {solve_pairs}")
+        if solve_pairs is not None and not self.collision.supports_pairs:
+            raise ValueError("solve_pairs needs primitive-mesh contact pairs with one contact "
+                             "count each; pass solve_pairs=None")
+        self.solve_pairs = solve_pairs
+        every_pair = self._solve_every_pair
+        if solve_pairs is None:
+            self._solve = every_pair if solve_capacities is None else where_needed(
+                every_pair, self._needs_solver, self._unconstrained, solve_capacities)
+        else:
+            near = self._solve_nearest_pairs if solve_capacities is None else where_needed(
+                self._solve_nearest_pairs, self._needs_nearest_pairs, self._unconstrained,
+                solve_capacities)
+            # per arm (x, its nearest-pairs result): every pair's result instead where needed
+            overflow = where_needed(lambda pair: every_pair(pair[0]),
+                                    lambda pair: self._too_many_pairs(pair[0]),
+                                    lambda pair: pair[1], (OVERFLOW_CAPACITY,))
+            self._solve = lambda x: overflow((x, near(x)))
 
     def init(self, qpos: jax.Array) -> PhysicsState:
         zeros = jnp.zeros(self.mj_model.nv, jnp.float32)
@@ -211,26 +204,37 @@ class Physics:
         with small_linalg.small_cholesky():
             return mjx.solve(m, mjx.make_constraint(m, data))
 
-    def _solve_all(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
-        data = self._rows_solved(data)
+    # The constraint paths take `(data after accelerate, ContactReach gaps float[P])` and give
+    # (qacc, qfrc_constraint), both float[7].
+    def _constrain(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
+        return self._solve((data, self._reach.gaps(data)))
+
+    def _solve_every_pair(self, x: tuple) -> tuple[jax.Array, jax.Array]:
+        data = self._rows_solved(self.collision.collide(self.model, x[0]))
         return data.qacc, data.qfrc_constraint
 
-    def _solve_nearest(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
-        return self._solve_all(nearest_contacts(data, self.solve_contacts))
+    def _solve_nearest_pairs(self, x: tuple) -> tuple[jax.Array, jax.Array]:
+        data, gaps = x
+        pairs = jax.lax.top_k(-gaps, self.solve_pairs)[1]
+        data = self._rows_solved(self.collision.collide_pairs(self.model, data, pairs))
+        return data.qacc, data.qfrc_constraint
 
-    def _too_many_contacts(self, data: mjx.Data) -> jax.Array:
-        contact = data._impl.contact
-        return jnp.sum(contact.dist < contact.includemargin) > self.solve_contacts
+    def _pairs_in_reach(self, x: tuple) -> jax.Array:
+        return jnp.sum(x[1] < self._reach.reach)
 
-    def _constrain_one(self, data: mjx.Data) -> tuple[jax.Array, jax.Array]:
-        return self._solve(self.collision.collide(self.model, data))
+    def _too_many_pairs(self, x: tuple) -> jax.Array:
+        return self._pairs_in_reach(x) > self.solve_pairs
 
-    def _needs_solver(self, data: mjx.Data) -> jax.Array:
-        return self._reach.may_touch(data) | self._reach.past_limit(data.qpos)
+    def _needs_solver(self, x: tuple) -> jax.Array:
+        return (self._pairs_in_reach(x) > 0) | self._reach.past_limit(x[0].qpos)
+
+    def _needs_nearest_pairs(self, x: tuple) -> jax.Array:
+        return self._needs_solver(x) & ~self._too_many_pairs(x)
 
     @staticmethod
-    def _unconstrained(data: mjx.Data) -> tuple[jax.Array, jax.Array]:
-        return data.qacc_smooth, jnp.zeros_like(data.qacc_smooth)
+    def _unconstrained(x: tuple) -> tuple[jax.Array, jax.Array]:
+        qacc = x[0].qacc_smooth
+        return qacc, jnp.zeros_like(qacc)
 
     def accelerate(self, data: mjx.Data, target: jax.Array,
                    qfrc_constraint: jax.Array) -> mjx.Data:
@@ -254,7 +258,8 @@ class Physics:
         """One physics step of h = model timestep toward joint targets `target` ([7], rad),
         after the previous substep's constraint forces `qfrc_constraint` ([7], N m)."""
         data = self.accelerate(data, target, qfrc_constraint)
-        qacc, qfrc = self._constrain(data) if self._has_constraints else self._unconstrained(data)
+        qacc, qfrc = (self._constrain(data) if self._has_constraints
+                      else self._unconstrained((data, None)))
         return mjx.euler(self.model, data.replace(qacc=qacc, qfrc_constraint=qfrc))
 
     def step(self, state: PhysicsState, target: jax.Array) -> PhysicsState:
@@ -273,5 +278,5 @@ class Physics:
             return jax.lax.fori_loop(0, self.substeps, substep, state)
 
 
-__all__ = ["MOTOR_RATE", "SUBSTEPS", "Physics", "PhysicsState", "motor_torque", "nearest_contacts",
+__all__ = ["MOTOR_RATE", "SUBSTEPS", "Physics", "PhysicsState", "motor_torque",
            "spd_inverse"]
