@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+import pytest
 
 from specrl_jax.envs.arm import model as arm_model
 from specrl_jax.envs.arm.collision import keep_contacts
@@ -132,6 +133,9 @@ def test_solve_over_the_nearest_pairs_matches_the_solve_over_all():
         assert (np.abs(np.asarray(got) - want) <= 1e-4 * scale + 1e-6)[in_reach > 1].all()
     wrong = np.abs(np.asarray(out["1 alone"][0]) - qacc).max(1)
     assert wrong[in_reach > 1].max() > 0.1 * scale.max()
+    with pytest.raises(ValueError, match="solve_pairs is a count of contact pairs"):
+        Physics(model, arm_model.FORCE_LIMITS, solve_pairs=0)
+    assert Physics(model, arm_model.FORCE_LIMITS, solve_pairs=model.npair).solve_pairs is None
 
 
 def _touching_and_free(model: mujoco.MjModel, touching: int, free: int, seed: int = 3

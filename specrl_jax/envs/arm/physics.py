@@ -155,9 +155,11 @@ class Physics:
         self.collision = Collision(model, self.model)
         self._has_constraints = self._template._impl.efc_J.size > 0
         self._reach = ContactReach(model, self.model, REACH_SLACK)
-        if solve_pairs is not None and not 1 <= solve_pairs <= model.npair:
-            raise ValueError(f"solve_pairs is a count of contact pairs (1 to {model.npair}) or "
-                             f"None (all); got {solve_pairs}")
+        if solve_pairs is not None and solve_pairs < 1:
+            raise ValueError(f"solve_pairs is a count of contact pairs (>= 1) or None (all); got "
+                             f"{solve_pairs}")
+        if solve_pairs is not None and solve_pairs >= model.npair:
+            solve_pairs = None  # every pair: the plain collision
         if solve_pairs is not None and not self.collision.supports_pairs:
             raise ValueError("solve_pairs needs primitive-mesh contact pairs with one contact "
                              "count each; pass solve_pairs=None")
