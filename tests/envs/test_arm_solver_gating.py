@@ -62,21 +62,20 @@ def test_contact_reach_bounds_the_distance_of_every_pair():
 
 def test_gathered_step_matches_the_step_that_solves_every_arm():
     """One env step of 32 arms, 12 starting on the table or floor (a link up to 1 cm deep)
-    and 20 free: gathering them into 16 slots (capacities 0.25 and 0.5), or with 10 slots
-    (capacity 0.3) running 10 at a time in turn while more than 10 need it, lands where the
-    step that runs MuJoCo's solver on every arm does, to float rounding (free arms take
-    MuJoCo's unconstrained acceleration exactly, the solver's to its tolerance)."""
+    and 20 free, gathered into 10 slots (capacity 0.3; 10 at a time in turn while more than 10
+    need it; test_compaction checks the choice of sub-batch size), lands where the step that
+    runs MuJoCo's solver on every arm does, to float rounding (free arms take MuJoCo's
+    unconstrained acceleration exactly, the solver's to its tolerance)."""
     model = arm_model.load_model()
     state, action = _touching_and_free(model, 12, 20)
     after = {}
-    for capacity in (None, (0.25, 0.5), (0.3,)):
+    for capacity in (None, (0.3,)):
         physics = Physics(model, arm_model.FORCE_LIMITS, solve_capacities=capacity,
                           solve_pairs=None)  # the next test checks the nearest pairs
         step = jax.jit(jax.vmap(lambda s, a: physics.step(s, s.qpos + ACTION_SCALE * a)))
         after[capacity] = step(state, action)
-    for capacity in ((0.25, 0.5), (0.3,)):
-        np.testing.assert_allclose(after[capacity].qpos, after[None].qpos, atol=2e-6)
-        np.testing.assert_allclose(after[capacity].qvel, after[None].qvel, atol=5e-4)
+    np.testing.assert_allclose(after[(0.3,)].qpos, after[None].qpos, atol=2e-6)
+    np.testing.assert_allclose(after[(0.3,)].qvel, after[None].qvel, atol=5e-4)
     moved = np.abs(np.asarray(after[None].qfrc_constraint[:12])).max(1)
     assert (moved > 0).sum() >= 4  # the table still pushes on touching arms at the end
 
