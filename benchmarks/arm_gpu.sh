@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # The arm world on one lent GPU, within ARM_GPU_SECONDS (default 560 s), compile included. With the
-# gated collision and solve (sessions 13-15) the env step compiled in about 75-84 s per batch size
-# on an H100 in session 14 (fewer programs since session 15), so the parts are: env throughput of
-# PandaLTLReach0Joints-v0 (batches 32,768 and 65,536), then PandaLTLReach1Joints-v0 (32,768;
-# 65,536 runs out of an H100's memory), with auto-reset from a layout bank (5 steps a call);
+# gated collision and solve the env step compiles in about 42 s per batch size on an H200
+# (session 16), so the parts are: env throughput of PandaLTLReach0Joints-v0 (batches 65,536 and
+# 262,144: the headline figure's), then PandaLTLReach1Joints-v0 (65,536 and 131,072; on an H100's
+# 80 GB use 32,768: 65,536 ran out of its memory in session 14), with auto-reset from a layout
+# bank (5 steps a call);
 # where a substep's time goes (`arm_stages.py`, 4,096 arms at states a uniform rollout reaches);
 # the NaN check (4,096 arms x 100 saturated steps per mode; the issue's 1,000 steps take about
 # 3 minutes a mode, run them apart); the tracking gains (256 arms x 300 steps) if time is left.
@@ -39,9 +40,9 @@ SECONDS=0
 nvidia-smi --query-gpu=name,driver_version --format=csv,noheader
 python -c "import jax, mujoco; print('jax', jax.__version__, 'mujoco', mujoco.__version__, jax.devices())"
 bank=(--resets bank --steps 5 --repeats 2 --bank-size 4096 --results "$results")
-part 200 benchmarks/env_throughput.py --envs PandaLTLReach0Joints-v0 --batches 32768 65536 "${bank[@]}"
-part 110 benchmarks/env_throughput.py --envs PandaLTLReach1Joints-v0 --batches 32768 "${bank[@]}"
-part 180 benchmarks/arm_stages.py --batch 4096 --steps 30 --out "$OUT/arm_stages.json"
+part 200 benchmarks/env_throughput.py --envs PandaLTLReach0Joints-v0 --batches 65536 262144 "${bank[@]}"
+part 150 benchmarks/env_throughput.py --envs PandaLTLReach1Joints-v0 --batches 65536 131072 "${bank[@]}"
+part 140 benchmarks/arm_stages.py --batch 4096 --steps 30 --out "$OUT/arm_stages.json"
 part 200 benchmarks/arm_checks.py --parts nan --batch 4096 --steps 100 --bank-size 4096 \
   --out "$OUT/arm_checks.json"
 part 60 benchmarks/arm_checks.py --parts gains --gain-batch 256 --gain-steps 300 \
