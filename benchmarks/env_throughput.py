@@ -48,15 +48,16 @@ def checksum(obs: Any, reward: jax.Array, done: jax.Array, info: dict[str, Any])
     return total.astype(jnp.float32)
 
 
-def make_rollout(env: BatchedEnv, params: Any, num_steps: int):
-    """`rollout(key, state) -> (state, checksum)`: `num_steps` random-action steps in a scan."""
+def make_rollout(env: BatchedEnv, params: Any, num_steps: int, fold=checksum):
+    """`rollout(key, state) -> (state, checksum)`: `num_steps` random-action steps in a scan;
+    `fold(obs, reward, done, info)` reduces each step's outputs to a float32 scalar."""
 
     def body(carry: tuple, _: None) -> tuple:
         key, state, total = carry
         key, key_action, key_step = jax.random.split(key, 3)
         actions = env.sample_actions(key_action)
         obs, state, reward, terminated, truncated, info = env.step(key_step, state, actions, params)
-        return (key, state, total + checksum(obs, reward, terminated | truncated, info)), None
+        return (key, state, total + fold(obs, reward, terminated | truncated, info)), None
 
     def rollout(key: jax.Array, state: Any) -> tuple[Any, jax.Array]:
         (_, state, total), _ = jax.lax.scan(body, (key, state, jnp.float32(0)), None, num_steps)

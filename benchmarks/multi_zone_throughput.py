@@ -21,6 +21,7 @@ import shlex
 import statistics
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -31,29 +32,14 @@ import specrl_jax
 from specrl_jax.envs.multi import MultiAutoReset
 from specrl_jax.envs.wrappers import BatchedEnv
 
-
-def checksum(obs: Any, reward: jax.Array, done: jax.Array, info: dict[str, Any]) -> jax.Array:
-    """A float32 scalar that depends on every output of the step."""
-    total = jnp.sum(reward) + jnp.sum(done) + jnp.sum(info["propositions"])
-    total = total + jnp.sum(info["symbol"])
-    for leaf in jax.tree.leaves(obs):
-        total = total + jnp.sum(leaf, dtype=jnp.float32)
-    return total.astype(jnp.float32)
+sys.path.insert(0, str(Path(__file__).parent))
+from env_throughput import checksum, make_rollout  # noqa: E402
 
 
-def make_rollout(env: BatchedEnv, params: Any, num_steps: int):
-    def body(carry: tuple, _: None) -> tuple:
-        key, state, total = carry
-        key, key_action, key_step = jax.random.split(key, 3)
-        actions = env.sample_actions(key_action)
-        obs, state, reward, terminated, truncated, info = env.step(key_step, state, actions, params)
-        return (key, state, total + checksum(obs, reward, terminated | truncated, info)), None
-
-    def rollout(key: jax.Array, state: Any) -> tuple[Any, jax.Array]:
-        (_, state, total), _ = jax.lax.scan(body, (key, state, jnp.float32(0)), None, num_steps)
-        return state, total
-
-    return jax.jit(rollout, donate_argnums=1)
+def checksum_with_symbol(obs: Any, reward: jax.Array, done: jax.Array,
+                         info: dict[str, Any]) -> jax.Array:
+    """env_throughput's checksum plus the joint symbol, which the multi-agent worlds report."""
+    return checksum(obs, reward, done, info) + jnp.sum(info["symbol"]).astype(jnp.float32)
 
 
 def measure(env_id: str, mode: str, num_envs: int, args: argparse.Namespace) -> dict[str, Any]:
@@ -66,7 +52,7 @@ def measure(env_id: str, mode: str, num_envs: int, args: argparse.Namespace) -> 
     start = time.perf_counter()
     _, state = jax.block_until_ready(jax.jit(batched.reset)(key_reset, params))
     reset_s = time.perf_counter() - start
-    rollout = make_rollout(batched, params, args.steps)
+    rollout = make_rollout(batched, params, args.steps, checksum_with_symbol)
     start = time.perf_counter()
     compiled = rollout.lower(key_run, state).compile()
     compile_s = time.perf_counter() - start
