@@ -152,3 +152,49 @@ def test_warp_tracks_mujoco_c_from_a_settled_car():
         mujoco.mj_forward(env.mj_model, data)
     assert np.linalg.norm(data.xpos[1, :2] - np.asarray(state.start_qpos[:2])) > 0.02  # it moved
     np.testing.assert_allclose(np.asarray(sim.agent_pos), data.xpos[1], atol=1e-4)
+
+
+@needs_warp
+def test_warp_ant_contacts_take_mujoco_cs_frame():
+    """A Warp Ant gives MuJoCo Warp C's capsule-plane frame (process-wide): at a settled Ant
+    state (4 foot contacts, capsules ~10 degrees from the floor normal) Warp's forward pass
+    has C's contact frames and C's accelerations under the original's pyramidal cone (Warp's
+    own frame, world y as first tangent, departs by 12% of qacc there: RESULTS.md)."""
+    from specrl_jax.envs.zone import warp_contact_frame
+    from specrl_jax.envs.zone.mjx_import import mjx
+    from specrl_jax.envs.zone.models import load_model
+
+    env, _ = specrl_jax.make("AntLTL0-v0", physics="warp")
+    assert env.physics.c_contact_frame and warp_contact_frame.installed()
+    assert not Physics(load_model("Car"), backend="warp").c_contact_frame  # no capsules
+    model = env.mj_model
+    data = mujoco.MjData(model)
+    data.qpos[:] = model.qpos0
+    for _ in range(100):
+        mujoco.mj_step(model, data)
+    data.ctrl[:] = np.random.default_rng(0).uniform(-1, 1, model.nu)
+    mujoco.mj_forward(model, data)
+    assert data.ncon == 4
+    forward = jax.jit(mjx.forward)(
+        mjx.put_model(model, impl="warp"),
+        mjx.put_data(model, data, impl="warp", naconmax=16, njmax=64),
+    )
+    impl = forward._impl
+    count = int(np.asarray(impl.nacon)[0])
+    pos, frames = np.asarray(impl.contact__pos)[:count], np.asarray(impl.contact__frame)[:count]
+    match = [int(np.argmin(np.abs(pos - p).sum(1))) for p in data.contact.pos]
+    assert count == 4 and sorted(match) == [0, 1, 2, 3]
+    np.testing.assert_allclose(frames[match].reshape(-1, 9), data.contact.frame, atol=1e-6)
+    error = np.abs(np.asarray(forward.qacc) - data.qacc).max() / np.abs(data.qacc).max()
+    assert error < 1e-5, error
+
+
+@needs_warp
+def test_warp_contact_frame_refuses_an_unexpected_mujoco_warp(monkeypatch):
+    """An MJX whose MuJoCo Warp has no capsule-plane function where we expect it fails loudly
+    (the Ant would otherwise silently keep Warp's frame)."""
+    from specrl_jax.envs.zone import warp_contact_frame
+
+    monkeypatch.setattr(warp_contact_frame, "_PRIMITIVE_COLLISIONS", {})
+    with pytest.raises(RuntimeError, match="not laid out as specrl_jax's capsule contact frame"):
+        warp_contact_frame.install()

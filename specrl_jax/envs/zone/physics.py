@@ -8,10 +8,11 @@ leaf-wise by auto-reset and must be sized by the number of worlds. `Physics.adva
 runs under a custom batching rule that flattens any nesting of `vmap`s into one batch of worlds
 and sizes the buffer to it.
 
-MJX-JAX traces capsule-floor contacts (the Ant's legs and feet) with MuJoCo C's contact frame
-(`contact_frame.py`); MuJoCo Warp does its own collision and keeps MJX's frame. A model traced
-with MJX's own frame (`c_contact_frame` False, for A/B comparisons) takes no lock, so tracing it
-on another thread while a C-frame trace runs would see C's frame.
+Capsule-floor contacts (the Ant's legs and feet) get MuJoCo C's contact frame in both backends:
+MJX-JAX while `Physics` traces (`contact_frame.py`), MuJoCo Warp process-wide from the first Warp
+model with such contacts on (`warp_contact_frame.py`). A JAX model traced with MJX's own frame
+(`c_contact_frame` False, for A/B comparisons) takes no lock, so tracing it on another thread
+while a C-frame trace runs would see C's frame.
 """
 
 from __future__ import annotations
@@ -91,13 +92,14 @@ class Physics:
             arithmetic (`small_linalg.small_cholesky`; backend "jax" only).
 
     Attributes:
-        c_contact_frame: whether capsule-plane contacts are traced with MuJoCo C's frame (backend
-            "jax" and a model with such pairs); set it False before tracing for MJX's own frame
-            (A/B comparisons only).
+        c_contact_frame: whether capsule-plane contacts get MuJoCo C's frame (a model with such
+            pairs); with backend "jax", set it False before tracing for MJX's own frame (A/B
+            comparisons only). With backend "warp" the frame is Warp's process-wide setting.
 
     Raises:
-        RuntimeError: backend "jax", a model with capsule-plane contacts, and an MJX whose
-            collider table is not laid out as `contact_frame` expects.
+        RuntimeError: a model with capsule-plane contacts, and an MJX whose collider table (or
+            whose MuJoCo Warp's, for backend "warp") is not laid out as `contact_frame`
+            (`warp_contact_frame`) expects.
     """
 
     def __init__(
@@ -129,10 +131,14 @@ class Physics:
                 opt=self.model.opt.replace(disableflags=DisableBit(flags))
             )
         # C's capsule-plane frame, for models that have such contacts (the Ant's, not
-        # Point's or Car's); checked here so that an MJX without the expected table fails now.
-        self.c_contact_frame = backend == "jax" and contact_frame.plane_capsule_pairs(model) > 0
-        if self.c_contact_frame:
+        # Point's or Car's); checked here so that an MJX without the expected layout fails now.
+        self.c_contact_frame = contact_frame.plane_capsule_pairs(model) > 0
+        if self.c_contact_frame and backend == "jax":
             contact_frame.check_mjx()
+        elif self.c_contact_frame:
+            from specrl_jax.envs.zone import warp_contact_frame
+
+            warp_contact_frame.install()
         if backend == "jax":
             self._template = mjx.make_data(self.model)
             # MJX-JAX's forward skips the acceleration sensors of a model without any constraint
@@ -177,7 +183,7 @@ class Physics:
         """`substeps` steps then a forward pass, one world (any number of `vmap`s around it)."""
         if self.backend == "jax":
             with contextlib.ExitStack() as scope:
-                if self.c_contact_frame:
+                if self.c_contact_frame:  # Warp's is installed at construction
                     scope.enter_context(contact_frame.c_contact_frame())
                 if self.small_cholesky:
                     scope.enter_context(small_linalg.small_cholesky())
