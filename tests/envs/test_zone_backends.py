@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from envs.ant_states import settled_ant
 
 import specrl_jax
 from specrl_jax.envs.zone import ZoneConfig
@@ -168,13 +169,7 @@ def test_warp_ant_contacts_take_mujoco_cs_frame():
     assert env.physics.c_contact_frame and warp_contact_frame.installed()
     assert not Physics(load_model("Car"), backend="warp").c_contact_frame  # no capsules
     model = env.mj_model
-    data = mujoco.MjData(model)
-    data.qpos[:] = model.qpos0
-    for _ in range(100):
-        mujoco.mj_step(model, data)
-    data.ctrl[:] = np.random.default_rng(0).uniform(-1, 1, model.nu)
-    mujoco.mj_forward(model, data)
-    assert data.ncon == 4
+    data = settled_ant(model)
     forward = jax.jit(mjx.forward)(
         mjx.put_model(model, impl="warp"),
         mjx.put_data(model, data, impl="warp", naconmax=16, njmax=64),

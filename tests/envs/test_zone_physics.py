@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from envs.ant_states import settled_ant
 from mujoco import mjx
 from mujoco.mjx._src import collision_driver, collision_primitive
 
@@ -282,13 +283,7 @@ def test_mjx_ant_contact_accelerations_agree_with_c():
                 ("pyramidal", True, 4))
     for cone, c_frame, cap in variants:
         model = load_model("Ant", Solver(8, 4, 6, cone=cone, max_contacts=cap))
-        data = mujoco.MjData(model)
-        data.qpos[:] = model.qpos0
-        for _ in range(100):
-            mujoco.mj_step(model, data)
-        data.ctrl[:] = np.random.default_rng(0).uniform(-1, 1, model.nu)
-        mujoco.mj_forward(model, data)
-        assert data.ncon == 4
+        data = settled_ant(model)
         # a fresh function per trace: jax.jit would reuse a trace of mjx.forward made outside
         forward = jax.jit(lambda m, d: mjx.forward(m, d))
         scope = contact_frame.c_contact_frame() if c_frame else contextlib.nullcontext()
