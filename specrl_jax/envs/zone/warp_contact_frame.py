@@ -23,6 +23,7 @@ from typing import Tuple
 
 import warp as wp
 
+from specrl_jax.envs.zone.contact_frame import MIN_NORM
 from specrl_jax.envs.zone.mjx_import import mjx  # noqa: F401  (imports MJX quietly first)
 
 # isort: split
@@ -30,8 +31,8 @@ from mujoco.mjx.third_party.mujoco_warp._src.collision_primitive import _PRIMITI
 from mujoco.mjx.third_party.mujoco_warp._src.collision_primitive_core import mat23f, plane_sphere
 from mujoco.mjx.third_party.mujoco_warp._src.types import GeomType
 
-#: MuJoCo C's `mjMINVAL` squared: below this squared norm a vector counts as zero.
-MIN_NORM_SQUARED = 1e-30
+#: Below this squared norm a vector counts as zero (`contact_frame.MIN_NORM`, C's `mjMINVAL`).
+MIN_NORM_SQUARED = MIN_NORM**2
 #: The table entry replaced.
 KEY = (GeomType.PLANE, GeomType.CAPSULE)
 _LOCK = threading.Lock()
@@ -92,10 +93,11 @@ def install() -> None:
     with _LOCK:
         if installed():
             return
-        wrapper = _PRIMITIVE_COLLISIONS.get(KEY) if isinstance(_PRIMITIVE_COLLISIONS, dict) else None
+        wrapper = _PRIMITIVE_COLLISIONS.get(KEY)
         problems = []
         if not isinstance(wrapper, wp.Function):
-            problems.append(f"collision_primitive._PRIMITIVE_COLLISIONS has no Warp function for {KEY}")
+            problems.append("collision_primitive._PRIMITIVE_COLLISIONS has no Warp function "
+                            f"for {KEY}")
         elif "plane_capsule" not in wrapper.func.__code__.co_names:
             problems.append("its capsule-plane function does not call plane_capsule by name")
         elif not isinstance(wrapper.func.__globals__.get("plane_capsule"), wp.Function):
