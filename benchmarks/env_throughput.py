@@ -10,8 +10,9 @@ Compile time is measured apart; the run is timed after one warm-up call, with
   bank   params from `env.with_map_bank(key, params, --bank-size)` when the env offers it;
   off    no auto-reset (the raw step, for reference: what resets cost).
 
-`--physics warp` builds Zone envs with MuJoCo Warp through MJX (needs warp-lang) instead of MJX's
-JAX implementation; the env column then reads e.g. `CarLTL0-v0 (warp)`. `--solver KEY=VALUE ...`
+`--physics {auto,jax,warp}` sets Zone envs' physics (default: the env's, "auto": MuJoCo Warp for
+Car and Ant on one CUDA GPU with warp-lang, MJX's JAX implementation otherwise); the env column
+names the backend that ran, e.g. `CarLTL0-v0 (warp)`. `--solver KEY=VALUE ...`
 overrides fields of a Zone env's physics settings (`zone.Solver`), named in the env column too.
 
 Results are appended to benchmarks/RESULTS.md (or --results) with device, versions, date, command.
@@ -99,7 +100,8 @@ def measure(
         state, total = jax.block_until_ready(compiled(jax.random.fold_in(key_run, repeat), state))
         times.append(time.perf_counter() - start)
     steps = num_envs * args.steps
-    settings = [args.physics] if args.physics else []
+    backend = getattr(getattr(env, "physics", None), "backend", None)  # Zone envs only
+    settings = [backend] if backend else []
     settings += [f"{k}={v}" for k, v in args.solver.items()]
     return {
         "env": env_id + (f" ({', '.join(settings)})" if settings else ""),
@@ -182,8 +184,8 @@ def parse_args() -> argparse.Namespace:
         help="JAX PRNG implementation (threefry2x32 is JAX's default)",
     )
     parser.add_argument(
-        "--physics", choices=["jax", "warp"], default=None,
-        help="physics backend of Zone envs (default: the env's, jax)",
+        "--physics", choices=["auto", "jax", "warp"], default=None,
+        help="physics backend of Zone envs (default: the env's, auto)",
     )
     parser.add_argument(
         "--solver", nargs="*", default=[], metavar="KEY=VALUE",

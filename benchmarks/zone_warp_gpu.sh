@@ -13,7 +13,19 @@ measure() {
 }
 nvidia-smi --query-gpu=name,driver_version --format=csv,noheader
 python -c "import jax, warp, mujoco; print('jax', jax.__version__, 'warp', warp.__version__, 'mujoco', mujoco.__version__)"
-if [ "${1:-1}" = 1 ]; then
+if [ "${1:-1}" = 5 ]; then  # session 17: the default physics ("auto": Warp for Car and Ant on one GPU)
+  measure 240 benchmarks/env_throughput.py --envs CarLTL0-v0 AntLTL0-v0 --batches 65536 262144 --resets exact --steps 10 --repeats 2
+  measure 120 benchmarks/zone_physics.py --physics warp --robots Car Ant --steps 30 --seeds 3
+  measure 200 benchmarks/physics_determinism.py --envs CarLTL0-v0 AntLTL0-v0 --physics jax warp --batch 4096 --steps 50
+elif [ "$1" = 6 ]; then  # session 17: GenZ-LTL trains on Car (both backends) and Ant (Warp), 2M steps each
+  for run in "CarLTL0-v0 auto" "CarLTL0-v0 jax" "AntLTL0-v0 auto"; do
+    set -- $run
+    echo "== $(date +%T) train genz $1 physics=$2"
+    timeout 200 python -m specrl_jax.cli train --method genz --env "$1" --env-option "physics=$2" \
+      --total-steps 2000000 --out "/tmp/train_$1_$2" --restart 2>&1 | grep -v '^Module \|^Warp \|^   ' | tail -4
+    cp "/tmp/train_$1_$2/train_summary.json" "$OUT/train_$1_$2.json" 2>/dev/null
+  done
+elif [ "$1" = 1 ]; then
   measure 150 benchmarks/env_throughput.py --envs CarLTL0-v0 --physics warp --batches 65536 262144 --resets exact --steps 20 --repeats 2
   measure 110 benchmarks/env_throughput.py --envs AntLTL0-v0 --physics warp --batches 65536 --resets exact --steps 10 --repeats 2
   measure 80 benchmarks/zone_physics.py --physics warp --robots Car Ant --steps 30 --seeds 2

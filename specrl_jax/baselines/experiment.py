@@ -125,8 +125,8 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     start = time.perf_counter()
     if map_bank and family(env_id) == "letter":
         log(f"building a bank of {map_bank:,} exactly sampled maps for training resets ...")
-    _world, _params, method_obj, config = build(method, env_id, ppo_overrides, map_bank, key_bank,
-                                                env_options, method_options)
+    world, _params, method_obj, config = build(method, env_id, ppo_overrides, map_bank, key_bank,
+                                               env_options, method_options)
     prepare = getattr(method_module(method), "prepare_training", None)
     if prepare is not None:  # a first phase before PPO (GCRL-LTL's direction primitives)
         method_obj = prepare(method_obj, key_train, config, log)
@@ -155,6 +155,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         "env_steps_per_seed": rows[-1]["env_steps"] if rows else 0,
         "complete": int(runner.update[0]) >= config.num_updates,
         "devices": int(mesh.size),  # the env batch was sharded over this many devices
+        "physics": getattr(getattr(world, "physics", None), "backend", None),  # Zone worlds
         "setup_s": setup,  # env and map bank, before training
         "wall_s_this_session": wall,
         # every session's steps over every session's training time (rows' clock spans resumes)

@@ -17,7 +17,8 @@ from envs.ant_states import settled_ant
 import specrl_jax
 from specrl_jax.envs.zone import ZoneConfig
 from specrl_jax.envs.zone.layout import from_bank
-from specrl_jax.envs.zone.physics import Physics, warp_available
+from specrl_jax.envs.zone import physics as zone_physics
+from specrl_jax.envs.zone.physics import Physics, resolve_physics, warp_available
 
 D4 = [
     lambda x, y: (x, y),
@@ -37,6 +38,29 @@ def test_unknown_or_missing_backend_is_rejected():
     if not warp_available():
         with pytest.raises(ValueError, match="warp-lang"):
             specrl_jax.make("PointLTL0-v0", physics="warp")
+
+
+def test_auto_physics_is_warp_for_car_and_ant_on_one_cuda_gpu_only(monkeypatch):
+    assert ZoneConfig().physics == "auto"
+    on_this_machine = "warp" if zone_physics._one_cuda_gpu() else "jax"
+    assert specrl_jax.make("CarLTL0-v0")[0].physics.backend == on_this_machine
+    monkeypatch.setattr(zone_physics, "_one_cuda_gpu", lambda: True)
+    assert [resolve_physics("auto", r) for r in ("Point", "Car", "Ant")] == ["jax", "warp", "warp"]
+    assert resolve_physics("jax", "Ant") == "jax"
+    monkeypatch.setattr(zone_physics, "_one_cuda_gpu", lambda: False)
+    assert [resolve_physics("auto", r) for r in ("Point", "Car", "Ant")] == ["jax"] * 3
+    assert resolve_physics("warp", "Point") == "warp"
+    with pytest.raises(ValueError, match=r"accepted: \('auto', 'jax', 'warp'\)"):
+        resolve_physics("mjx", "Car")
+
+
+def test_one_cuda_gpu_needs_one_gpu_device(monkeypatch):
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    monkeypatch.setattr(jax, "device_count", lambda: 2)
+    assert not zone_physics._one_cuda_gpu()  # several devices: MJX-JAX, which XLA can split
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
+    monkeypatch.setattr(jax, "device_count", lambda: 1)
+    assert not zone_physics._one_cuda_gpu()
 
 
 # ---- layout bank ----------------------------------------------------------------------------

@@ -40,7 +40,8 @@ class MultiZoneConfig:
             `collision_distance` (planar, centres), as the original's code does; off by
             default, as in the paper's evaluation (docs/fidelity.md).
         collision_distance: metres.
-        solver, physics, wall: as in `ZoneConfig`.
+        solver, physics, wall: as in `ZoneConfig`, but physics defaults to "jax" (agents under
+            MuJoCo Warp are not measured).
         max_tries: tries per object before a layout restart (the original's multi-agent
             sampler: 1000).
         max_restarts: whole-layout attempts before giving up (original: 10000).

@@ -4,7 +4,8 @@ Declares `{Point,Car,Ant}LTL{0,1,2}[Vision]-v0` with the suffixes `.partial`, `.
 `.partial_overlap` (the `Vision` IDs add the robot camera's frame, `obs["image"]`; their
 `image_size` is 256 x 256 unless overridden); `make_zone(config)` builds a custom world from a
 `ZoneConfig` (`vision=True` for a camera). Options: the
-physics backend (`physics="jax"` default, or `"warp"` for MuJoCo Warp through MJX) and opt-in
+physics backend (`physics="auto"` default: MuJoCo Warp for Car and Ant on one CUDA GPU with
+warp-lang, MJX's JAX implementation otherwise; or `"jax"` / `"warp"` by name) and opt-in
 layout-bank resets (`env.with_map_bank(key, params, num_maps)`).
 """
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 from specrl_jax.envs.zone.models import ROBOTS, Solver
 from specrl_jax.envs.zone.motion import MOTIONS
-from specrl_jax.envs.zone.physics import BACKENDS
+from specrl_jax.envs.zone.physics import PHYSICS
 
 #: The 16 colour names the original accepts for custom worlds.
 COLOR_NAMES = (
@@ -84,8 +84,10 @@ class ZoneConfig:
             zones of different colours overlap.
         horizon: default `params.max_steps`.
         solver: physics solver settings (None: the robot's default).
-        physics: "jax" (MJX's JAX implementation, any device) or "warp" (MuJoCo Warp through
-            MJX; needs warp-lang and a CUDA GPU, or a CPU where warp-lang can compile).
+        physics: "auto" (default: MuJoCo Warp for Car and Ant on one CUDA GPU with warp-lang
+            installed, MJX's JAX implementation otherwise; `physics.resolve_physics`), "jax"
+            (MJX's JAX implementation, any device) or "warp" (MuJoCo Warp through MJX; needs
+            warp-lang and a CUDA GPU, or a CPU where warp-lang can compile).
         wall: |x| or |y| at which the episode terminates, metres.
         travel: radius of a moving zone's commanded circle, metres.
         angular_speed: of a moving zone's command, rad per simulated second.
@@ -112,7 +114,7 @@ class ZoneConfig:
     overlap_alphabet: bool = False
     horizon: int = 1000
     solver: Solver | None = None
-    physics: str = "jax"
+    physics: str = "auto"
     wall: float = 3.3
     travel: float = 0.3
     angular_speed: float = 2.0
@@ -124,8 +126,8 @@ class ZoneConfig:
     num_bins: int = field(default=16, init=False)
 
     def __post_init__(self) -> None:
-        if self.physics not in BACKENDS:
-            raise ValueError(f"unknown physics backend {self.physics!r}; accepted: {BACKENDS}")
+        if self.physics not in PHYSICS:
+            raise ValueError(f"unknown physics backend {self.physics!r}; accepted: {PHYSICS}")
         if self.zone_motion not in MOTIONS:
             raise ValueError(f"unknown zone_motion {self.zone_motion!r}; accepted: {MOTIONS}")
         if self.robot not in ROBOTS:

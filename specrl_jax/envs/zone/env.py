@@ -20,7 +20,7 @@ from specrl_jax.envs.zone.config import ZoneConfig
 from specrl_jax.envs.zone.layout import check_feasible, from_bank, sample_bank, sample_positions
 from specrl_jax.envs.zone.models import ROBOTS, load_model, start_height
 from specrl_jax.envs.zone.motion import make_motion
-from specrl_jax.envs.zone.physics import SUBSTEPS, Physics, PhysicsState
+from specrl_jax.envs.zone.physics import SUBSTEPS, Physics, PhysicsState, resolve_physics
 from specrl_jax.envs.zone.sensors import compute_lidar, robot_sensor_reader, wall_sensor
 
 ANT_FALL_HEIGHT = 0.08
@@ -66,7 +66,8 @@ class ZoneEnv(Env):
       joint torques), clipped to [-1, 1]; 10 physics substeps per step.
     Labels: colour p holds iff the agent body is within the radius of a zone of colour p.
     Termination: |x| or |y| >= 3.3 (the walls), the Ant's torso z <= 0.08. Reward: always 0.
-    State: `ZoneState`. Physics: `config.physics` ("jax" MJX, or "warp" MuJoCo Warp through MJX).
+    State: `ZoneState`. Physics: `config.physics` resolved on this machine (`physics.backend`:
+    "jax" MJX, or "warp" MuJoCo Warp through MJX).
     Resets: an exact layout each time, or opt-in draws from `with_map_bank`.
     Invalid actions: an eager call with NaN or inf in the action raises `ValueError`; under
       `jit` or `vmap` the step applies zeros instead, ends the episode (`terminated`) and sets
@@ -84,11 +85,12 @@ class ZoneEnv(Env):
         self.propositions = config.propositions
         self._num_parallel = check_feasible(config)
         solver = config.solver
-        if config.physics != "jax":  # the contact cap is MJX-JAX's; Warp keeps its own buffer
+        backend = resolve_physics(config.physics, config.robot)
+        if backend != "jax":  # the contact cap is MJX-JAX's; Warp keeps its own buffer
             solver = dataclasses.replace(solver, max_contacts=0)
         self.mj_model = load_model(config.robot, solver)
         self.physics = Physics(
-            self.mj_model, config.physics, config.solver.substep_sensors, config.solver.unroll,
+            self.mj_model, backend, config.solver.substep_sensors, config.solver.unroll,
             config.solver.small_cholesky,
         )
         self.start_height = start_height(config.robot, self.mj_model)

@@ -30,8 +30,13 @@ from specrl_jax.envs.zone.mjx_import import mjx
 # isort: split
 from mujoco.mjx._src.types import DisableBit
 
-#: Accepted values of `ZoneConfig.physics`.
+#: The physics backends `Physics` runs.
 BACKENDS = ("jax", "warp")
+#: Accepted values of `ZoneConfig.physics`: a backend, or "auto" (`resolve_physics`).
+PHYSICS = ("auto", *BACKENDS)
+#: Robots that "auto" steps with MuJoCo Warp on one NVIDIA GPU: their contacts make MJX-JAX
+#: 2-14x slower there (benchmarks/RESULTS.md); the contact-free Point is faster on MJX-JAX.
+WARP_ROBOTS = ("Car", "Ant")
 SUBSTEPS = 10
 
 
@@ -61,6 +66,29 @@ def warp_available() -> bool:
     from mujoco.mjx import warp as mjx_warp
 
     return bool(mjx_warp.WARP_INSTALLED)
+
+
+def _one_cuda_gpu() -> bool:
+    """Whether JAX computes on exactly one device, a GPU that Warp can run on (CUDA)."""
+    if jax.default_backend() != "gpu" or jax.device_count() != 1 or not warp_available():
+        return False
+    import warp
+
+    return bool(warp.is_cuda_available())
+
+
+def resolve_physics(physics: str, robot: str) -> str:
+    """The backend that `ZoneConfig.physics` means on this machine.
+
+    "auto" is "warp" for the robots in `WARP_ROBOTS` when JAX runs on one CUDA GPU and
+    warp-lang is installed, else "jax". With several devices "auto" is "jax": MuJoCo Warp runs
+    as a foreign call that XLA cannot split across devices. "jax" and "warp" are kept as given.
+    """
+    if physics not in PHYSICS:
+        raise ValueError(f"unknown physics backend {physics!r}; accepted: {PHYSICS}")
+    if physics != "auto":
+        return physics
+    return "warp" if robot in WARP_ROBOTS and _one_cuda_gpu() else "jax"
 
 
 def _max_contacts(model: mujoco.MjModel) -> int:
@@ -255,4 +283,7 @@ class Physics:
         return worlds
 
 
-__all__ = ["BACKENDS", "SUBSTEPS", "Physics", "PhysicsState", "warp_available"]
+__all__ = [
+    "BACKENDS", "PHYSICS", "SUBSTEPS", "WARP_ROBOTS", "Physics", "PhysicsState", "resolve_physics",
+    "warp_available",
+]
