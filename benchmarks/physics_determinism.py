@@ -4,7 +4,9 @@ Each env is stepped `--steps` times at `--batch` worlds with random actions and 
 (env_throughput's rollout), twice from copies of one state with one key; the row reports how many
 state elements differ between the two runs and by how much at most. MuJoCo Warp sums contact
 forces with atomic adds on a GPU, so its runs may differ in the last bits where MJX-JAX's
-repeat exactly. Results are appended to benchmarks/RESULTS.md (or --results).
+repeat exactly (warp-lang 1.19's deterministic atomics, `warp.config.deterministic`, cannot
+compile MuJoCo Warp's kernels: `smooth._qLD_acc` reads an array it also updates atomically).
+Results are appended to benchmarks/RESULTS.md (or --results).
 
     python benchmarks/physics_determinism.py --envs CarLTL0-v0 AntLTL0-v0 --physics jax warp
 """
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import os
 import shlex
 import sys
 
@@ -56,7 +59,8 @@ def main() -> None:
     args = parser.parse_args()
     lines = [
         "", f"## Physics determinism: {device_name()}, {datetime.date.today().isoformat()}", "",
-        f"jax {jax.__version__}. Command: `{shlex.join(['python', *sys.argv])}`", "",
+        f"jax {jax.__version__}" + (f", XLA_FLAGS `{os.environ['XLA_FLAGS']}`" if os.environ.get("XLA_FLAGS") else "")
+        + f". Command: `{shlex.join(['python', *sys.argv])}`", "",
         "| env | physics | batch | steps | state elements | differing | max abs difference | checksums equal |",
         "|---|---|---|---|---|---|---|---|",
     ]

@@ -68,13 +68,20 @@ def warp_available() -> bool:
     return bool(mjx_warp.WARP_INSTALLED)
 
 
+def _import_warp():
+    """warp-lang, logging warnings and errors only: it logs its start-up and a line per kernel
+    module it loads (dozens on a first step)."""
+    import warp
+
+    warp.config.log_level = max(warp.config.log_level, warp.LOG_WARNING)
+    return warp
+
+
 def _one_cuda_gpu() -> bool:
     """Whether JAX computes on exactly one device, a GPU that Warp can run on (CUDA)."""
     if jax.default_backend() != "gpu" or jax.device_count() != 1 or not warp_available():
         return False
-    import warp
-
-    return bool(warp.is_cuda_available())
+    return bool(_import_warp().is_cuda_available())
 
 
 def resolve_physics(physics: str, robot: str) -> str:
@@ -143,6 +150,8 @@ class Physics:
             )
         self.backend = backend
         self.mj_model = model
+        if backend == "warp":
+            _import_warp()
         self.model = mjx.put_model(model, impl=backend)
         self.unroll = unroll
         self.small_cholesky = small_cholesky and backend == "jax"
