@@ -24,8 +24,8 @@ class Solver:
     `cone` is the friction cone, "pyramidal" (the original's) or "elliptic". For capsules within
     30 degrees of the floor normal (the Ant's feet) MJX's own collider orients the contact's
     tangents along world y, MuJoCo C along the capsule; a pyramidal cone is not
-    rotation-invariant, so the contact problems would differ. The default `physics="jax"` traces
-    these contacts with C's frame (`contact_frame.py`); MuJoCo Warp keeps its own. An elliptic
+    rotation-invariant, so the contact problems would differ. Both backends make these contacts
+    with C's frame (`contact_frame.py`, `warp_contact_frame.py`). An elliptic
     cone with isotropic friction is the same problem under either frame.
 
     Speed settings of MJX-JAX (MuJoCo C runs the same model without them):
