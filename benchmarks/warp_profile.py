@@ -1,0 +1,109 @@
+"""Where a MuJoCo Warp physics step of the Car and the Ant spends its time, stage by stage.
+
+MuJoCo Warp times every function it marks as a stage with CUDA events (`EventTracer`); this
+script steps our robot models (`zone.models.load_model`, the default solver settings, the
+Ant's capsule contacts with MuJoCo C's frame as `physics="warp"` installs them) directly in
+MuJoCo Warp, `--worlds` worlds from the env's start pose under uniform random controls, the
+contact buffer sized as `zone.physics.Physics` sizes it. Prints, per robot, the mean time per
+physics substep of each stage (nested stages indented) and the share of the whole step; appends
+the table to benchmarks/RESULTS.md (or --results). Needs warp-lang and a CUDA GPU (on a CPU,
+Warp records no events).
+
+    python benchmarks/warp_profile.py --robots Car Ant --worlds 262144 --substeps 50
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import datetime
+
+import mujoco
+import numpy as np
+
+from specrl_jax.envs.zone import contact_frame, warp_contact_frame
+from specrl_jax.envs.zone.config import DEFAULT_SOLVERS
+from specrl_jax.envs.zone.models import load_model, start_height
+from specrl_jax.envs.zone.physics import _import_warp, _max_contacts, _max_rows
+
+
+def _flatten(trace: dict, depth: int = 0) -> list[tuple[int, str, float]]:
+    """(depth, stage, total ms) rows of an EventTracer trace, parents before children."""
+    rows = []
+    for name, (events, children) in trace.items():
+        rows.append((depth, name, float(sum(events))))
+        rows += _flatten(children, depth + 1)
+    return rows
+
+
+def profile(robot: str, worlds: int, substeps: int, seed: int) -> tuple[list, float]:
+    """Per-stage ms per substep, and the whole step's, for `worlds` worlds of `robot`."""
+    wp = _import_warp()
+    from mujoco.mjx.third_party import mujoco_warp as mjw
+    from mujoco.mjx.third_party.mujoco_warp._src.warp_util import EventTracer
+
+    # Warp keeps its own contact buffer: no MJX-JAX contact cap (as `ZoneEnv` builds it)
+    mj_model = load_model(robot, dataclasses.replace(DEFAULT_SOLVERS[robot], max_contacts=0))
+    if contact_frame.plane_capsule_pairs(mj_model) > 0:
+        warp_contact_frame.install()
+    mj_data = mujoco.MjData(mj_model)
+    mj_data.qpos[2] = start_height(robot, mj_model)
+    mujoco.mj_forward(mj_model, mj_data)
+    slots = _max_contacts(mj_model)
+    model = mjw.put_model(mj_model)
+    data = mjw.put_data(mj_model, mj_data, nworld=worlds, naconmax=2 * slots * worlds,
+                        njmax=_max_rows(mj_model, slots))
+    rng = np.random.default_rng(seed)
+    for _ in range(3):  # compile, then settle into contact
+        wp.copy(data.ctrl, wp.array(rng.uniform(-1, 1, (worlds, mj_model.nu)).astype(np.float32)))
+        mjw.step(model, data)
+    wp.synchronize()
+    totals: dict[tuple[int, str], float] = {}
+    order: list[tuple[int, str]] = []
+    whole = 0.0
+    for _ in range(substeps):
+        wp.copy(data.ctrl, wp.array(rng.uniform(-1, 1, (worlds, mj_model.nu)).astype(np.float32)))
+        with EventTracer() as tracer:
+            start, end = wp.Event(enable_timing=True), wp.Event(enable_timing=True)
+            wp.record_event(start)
+            mjw.step(model, data)
+            wp.record_event(end)
+            wp.synchronize()
+            whole += wp.get_event_elapsed_time(start, end)
+            for depth, name, ms in _flatten(tracer.trace()):
+                if (depth, name) not in totals:
+                    order.append((depth, name))
+                totals[(depth, name)] = totals.get((depth, name), 0.0) + ms
+    return [(d, n, totals[(d, n)] / substeps) for d, n in order], whole / substeps
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--robots", nargs="+", default=["Car", "Ant"], choices=["Point", "Car", "Ant"])
+    parser.add_argument("--worlds", type=int, default=65536)
+    parser.add_argument("--substeps", type=int, default=50, help="timed physics substeps")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--results", default="benchmarks/RESULTS.md")
+    args = parser.parse_args()
+    wp = _import_warp()
+    device = wp.get_device()
+    lines = ["", f"## MuJoCo Warp stages per substep: {device.name}, {datetime.date.today().isoformat()}", "",
+             f"warp-lang {wp.config.version}, mujoco {mujoco.__version__}, {args.worlds:,} worlds, "
+             f"{args.substeps} timed substeps under uniform random controls "
+             f"(`python benchmarks/warp_profile.py --robots {' '.join(args.robots)} --worlds {args.worlds} "
+             f"--substeps {args.substeps}`).", ""]
+    for robot in args.robots:
+        stages, whole = profile(robot, args.worlds, args.substeps, args.seed)
+        env_steps = args.worlds / (10 * whole / 1e3)  # 10 substeps per env step
+        lines += [f"{robot}: {whole:.3f} ms per substep ({env_steps:,.0f} env-steps/s of physics alone).", "",
+                  "| stage | ms per substep | share |", "|---|---|---|"]
+        lines += [f"| {'&nbsp;' * 4 * d}{name} | {ms:.3f} | {ms / whole:.0%} |" for d, name, ms in stages]
+        lines.append("")
+    text = "\n".join(lines)
+    print(text, flush=True)
+    with open(args.results, "a") as f:
+        f.write(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
