@@ -52,24 +52,28 @@ def compare(env_id: str, physics: str, num_envs: int, num_steps: int) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--envs", nargs="+", default=["CarLTL0-v0", "AntLTL0-v0"])
-    parser.add_argument("--physics", nargs="+", choices=["auto", "jax", "warp"], default=["jax", "warp"])
+    parser.add_argument("--physics", nargs="+", choices=["auto", "jax", "warp"],
+                        default=["jax", "warp"])
     parser.add_argument("--batch", type=int, default=4096)
     parser.add_argument("--steps", type=int, default=100)
     parser.add_argument("--results", default="benchmarks/RESULTS.md")
     args = parser.parse_args()
+    flags = os.environ.get("XLA_FLAGS")
     lines = [
         "", f"## Physics determinism: {device_name()}, {datetime.date.today().isoformat()}", "",
-        f"jax {jax.__version__}" + (f", XLA_FLAGS `{os.environ['XLA_FLAGS']}`" if os.environ.get("XLA_FLAGS") else "")
+        f"jax {jax.__version__}" + (f", XLA_FLAGS `{flags}`" if flags else "")
         + f". Command: `{shlex.join(['python', *sys.argv])}`", "",
-        "| env | physics | batch | steps | state elements | differing | max abs difference | checksums equal |",
+        "| env | physics | batch | steps | state elements | differing | max abs difference "
+        "| checksums equal |",
         "|---|---|---|---|---|---|---|---|",
     ]
     append(args.results, "\n".join(lines) + "\n")
     for env_id in args.envs:
         for physics in args.physics:
             r = compare(env_id, physics, args.batch, args.steps)
-            row = (f"| {r['env']} | {r['physics']} | {r['batch']} | {r['steps']} | {r['elements']:,} | "
-                   f"{r['differing']:,} | {r['max_diff']:.3g} | {r['checksums_equal']} |")
+            row = (f"| {r['env']} | {r['physics']} | {r['batch']} | {r['steps']} | "
+                   f"{r['elements']:,} | {r['differing']:,} | {r['max_diff']:.3g} | "
+                   f"{r['checksums_equal']} |")
             print(row, flush=True)
             append(args.results, row + "\n")
 

@@ -79,25 +79,27 @@ def profile(robot: str, worlds: int, substeps: int, seed: int) -> tuple[list, fl
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--robots", nargs="+", default=["Car", "Ant"], choices=["Point", "Car", "Ant"])
+    parser.add_argument("--robots", nargs="+", default=["Car", "Ant"],
+                        choices=["Point", "Car", "Ant"])
     parser.add_argument("--worlds", type=int, default=65536)
     parser.add_argument("--substeps", type=int, default=50, help="timed physics substeps")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--results", default="benchmarks/RESULTS.md")
     args = parser.parse_args()
     wp = _import_warp()
-    device = wp.get_device()
-    lines = ["", f"## MuJoCo Warp stages per substep: {device.name}, {datetime.date.today().isoformat()}", "",
+    today = datetime.date.today().isoformat()
+    command = (f"python benchmarks/warp_profile.py --robots {' '.join(args.robots)} "
+               f"--worlds {args.worlds} --substeps {args.substeps}")
+    lines = ["", f"## MuJoCo Warp stages per substep: {wp.get_device().name}, {today}", "",
              f"warp-lang {wp.config.version}, mujoco {mujoco.__version__}, {args.worlds:,} worlds, "
-             f"{args.substeps} timed substeps under uniform random controls "
-             f"(`python benchmarks/warp_profile.py --robots {' '.join(args.robots)} --worlds {args.worlds} "
-             f"--substeps {args.substeps}`).", ""]
+             f"{args.substeps} timed substeps under uniform random controls (`{command}`).", ""]
     for robot in args.robots:
         stages, whole = profile(robot, args.worlds, args.substeps, args.seed)
         env_steps = args.worlds / (10 * whole / 1e3)  # 10 substeps per env step
-        lines += [f"{robot}: {whole:.3f} ms per substep ({env_steps:,.0f} env-steps/s of physics alone).", "",
-                  "| stage | ms per substep | share |", "|---|---|---|"]
-        lines += [f"| {'&nbsp;' * 4 * d}{name} | {ms:.3f} | {ms / whole:.0%} |" for d, name, ms in stages]
+        lines += [f"{robot}: {whole:.3f} ms per substep ({env_steps:,.0f} env-steps/s of physics "
+                  "alone).", "", "| stage | ms per substep | share |", "|---|---|---|"]
+        lines += [f"| {'&nbsp;' * 4 * d}{name} | {ms:.3f} | {ms / whole:.0%} |"
+                  for d, name, ms in stages]
         lines.append("")
     text = "\n".join(lines)
     print(text, flush=True)

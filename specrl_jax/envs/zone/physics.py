@@ -34,8 +34,8 @@ from mujoco.mjx._src.types import DisableBit
 BACKENDS = ("jax", "warp")
 #: Accepted values of `ZoneConfig.physics`: a backend, or "auto" (`resolve_physics`).
 PHYSICS = ("auto", *BACKENDS)
-#: Robots that "auto" steps with MuJoCo Warp on one NVIDIA GPU: their contacts make MJX-JAX
-#: 2-14x slower there (benchmarks/RESULTS.md); the contact-free Point is faster on MJX-JAX.
+#: Robots that "auto" steps with MuJoCo Warp on one NVIDIA GPU: MJX-JAX runs their contacts
+#: 4-14x slower there (benchmarks/RESULTS.md); the contact-free Point is faster on MJX-JAX.
 WARP_ROBOTS = ("Car", "Ant")
 SUBSTEPS = 10
 
