@@ -87,6 +87,8 @@ def main() -> None:
     parser.add_argument("--results", default="benchmarks/RESULTS.md")
     args = parser.parse_args()
     wp = _import_warp()
+    if not wp.is_cuda_available():
+        parser.error("needs a CUDA GPU: MuJoCo Warp times its stages with CUDA events")
     today = datetime.date.today().isoformat()
     command = (f"python benchmarks/warp_profile.py --robots {' '.join(args.robots)} "
                f"--worlds {args.worlds} --substeps {args.substeps}")
