@@ -23,6 +23,7 @@ import numpy as np
 
 from specrl_jax.envs.zone import contact_frame, warp_contact_frame
 from specrl_jax.envs.zone.config import DEFAULT_SOLVERS
+from specrl_jax.envs.zone.env import ANT_START_JOINTS
 from specrl_jax.envs.zone.models import load_model, start_height
 from specrl_jax.envs.zone.physics import _import_warp, _max_contacts, _max_rows
 
@@ -48,6 +49,8 @@ def profile(robot: str, worlds: int, substeps: int, seed: int) -> tuple[list, fl
         warp_contact_frame.install()
     mj_data = mujoco.MjData(mj_model)
     mj_data.qpos[2] = start_height(robot, mj_model)
+    if robot == "Ant":  # the env's start pose before its joint noise (Car: the model's qpos0)
+        mj_data.qpos[7:] = ANT_START_JOINTS
     mujoco.mj_forward(mj_model, mj_data)
     slots = _max_contacts(mj_model)
     model = mjw.put_model(mj_model)

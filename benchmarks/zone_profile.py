@@ -159,7 +159,7 @@ def profile(robot: str, batch: int, warm: int, loops: int, repeats: int,
             overrides: dict[str, Any], with_reset: bool, fine: bool) -> dict[str, Any]:
     """Per-stage timings of one robot's env step (see the module docstring)."""
     solver_cfg = dataclasses.replace(DEFAULT_SOLVERS[robot], **overrides)
-    env, params = make_zone(level_config(robot, 0, solver=solver_cfg))
+    env, params = make_zone(level_config(robot, 0, solver=solver_cfg, physics="jax"))  # MJX-JAX's stages
     physics = env.physics
     @contextlib.contextmanager
     def scope():  # what `Physics.advance` opens around its tracing

@@ -132,6 +132,8 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         method_obj = prepare(method_obj, key_train, config, log)
     setup = time.perf_counter() - start
     log(f"set up {env_id} in {setup:.1f}s; compiling the training step (the first chunk includes it)")
+    # Zone worlds: the backend "auto" chose, so that a run does not resume on another
+    physics = getattr(getattr(world, "physics", None), "backend", None)
     mesh = env_mesh(list(devices) if devices is not None else None)
     trainer = make_train(config, method_obj, mesh)
     start = time.perf_counter()
@@ -139,6 +141,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         trainer, key_train, run_dir, chunk_updates, num_seeds,
         extra_config={"method": method, "env": env_id, "map_bank": map_bank, "seed": seed,
                       **({"env_options": dict(env_options)} if env_options else {}),
+                      **({"physics": physics} if physics else {}),
                       **({"method_options": dict(method_options)} if method_options else {})},
         summarise=method_module(method).summarise, log=log, max_wall_s=max_wall_s, restart=restart,
     )
@@ -155,7 +158,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         "env_steps_per_seed": rows[-1]["env_steps"] if rows else 0,
         "complete": int(runner.update[0]) >= config.num_updates,
         "devices": int(mesh.size),  # the env batch was sharded over this many devices
-        "physics": getattr(getattr(world, "physics", None), "backend", None),  # Zone worlds
+        "physics": physics,  # Zone worlds
         "setup_s": setup,  # env and map bank, before training
         "wall_s_this_session": wall,
         # every session's steps over every session's training time (rows' clock spans resumes)

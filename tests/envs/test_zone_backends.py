@@ -54,12 +54,16 @@ def test_auto_physics_is_warp_for_car_and_ant_on_one_cuda_gpu_only(monkeypatch):
         resolve_physics("mjx", "Car")
 
 
-def test_one_cuda_gpu_needs_one_gpu_device(monkeypatch):
+def test_one_cuda_gpu_needs_one_gpu_device_in_float32(monkeypatch):
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     monkeypatch.setattr(jax, "device_count", lambda: 2)
     assert not zone_physics._one_cuda_gpu()  # several devices: MJX-JAX, which XLA can split
-    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
     monkeypatch.setattr(jax, "device_count", lambda: 1)
+    monkeypatch.setattr(zone_physics, "warp_available", lambda: True)
+    monkeypatch.setattr(zone_physics, "_import_warp", lambda: pytest.fail("x64 must not ask Warp"))
+    with jax.enable_x64(True):
+        assert not zone_physics._one_cuda_gpu()  # MuJoCo Warp is float32 only
+    monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
     assert not zone_physics._one_cuda_gpu()
 
 

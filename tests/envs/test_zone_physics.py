@@ -46,7 +46,7 @@ def zone(robot: str):
     """(env, params, jitted reset, jitted step) of the robot's world in `GYM_IDS`: the Gymnasium
     bridge's compiled functions, which tests/envs/test_zone_gym.py compiles for the same worlds,
     so that each robot's reset and step compile once in the suite."""
-    bridge = GymEnv(GYM_IDS[robot])
+    bridge = GymEnv(GYM_IDS[robot], physics="jax")  # the bounds here are MJX-JAX's
     reset = lambda key, params: bridge._reset(key, params)[:2]  # (obs, state), without the label
     return bridge.env, bridge.params, reset, bridge._step
 
@@ -187,7 +187,7 @@ def test_mjx_car_in_float64_tracks_c_within_cs_own_spread():
     departs at step 41 by a one-step error of 1.4e-5 m, cause not found (benchmarks/RESULTS.md)."""
     worst = []
     with jax.enable_x64(True):
-        env, params = make_zone(level_config("Car", 0))
+        env, params = make_zone(level_config("Car", 0, physics="jax"))
         reset, step = jax.jit(env.reset), jax.jit(env.step_env)
         for seed in range(8):
             rng, rng_perturb = np.random.default_rng(seed), np.random.default_rng(10_000 + seed)

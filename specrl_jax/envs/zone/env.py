@@ -24,6 +24,8 @@ from specrl_jax.envs.zone.physics import SUBSTEPS, Physics, PhysicsState, resolv
 from specrl_jax.envs.zone.sensors import compute_lidar, robot_sensor_reader, wall_sensor
 
 ANT_FALL_HEIGHT = 0.08
+#: The Ant's joint angles at an episode start before noise: hips 0, ankles +-pi/2, as the original.
+ANT_START_JOINTS = (0.0, np.pi / 2, 0.0, -np.pi / 2, 0.0, -np.pi / 2, 0.0, np.pi / 2)
 ANT_JOINT_NOISE = 0.1
 
 
@@ -200,7 +202,7 @@ class ZoneEnv(Env):
         elif self.config.robot == "Ant":
             # Hips near 0, ankles near +-pi/2 (ankle_2 and ankle_3 negative), as the original.
             noise = jax.random.uniform(key_joints, (8,), minval=-ANT_JOINT_NOISE, maxval=ANT_JOINT_NOISE)
-            base = jnp.array([0.0, 1.0, 0.0, -1.0, 0.0, -1.0, 0.0, 1.0]) * (jnp.pi / 2)
+            base = jnp.asarray(ANT_START_JOINTS, jnp.float32)
             sign = jnp.array([1.0, 1.0, 1.0, -1.0, 1.0, -1.0, 1.0, 1.0])
             layout["joint_qpos"] = base + sign * noise
         return layout

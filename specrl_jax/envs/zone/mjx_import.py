@@ -1,7 +1,7 @@
 """`mujoco.mjx`, imported without the notice it prints when the optional Warp backend is absent.
 
-specrl_jax uses MJX's JAX implementation only; the notice ("Failed to import warp") would
-otherwise appear on every `import specrl_jax`.
+Without warp-lang specrl_jax uses MJX's JAX implementation only; the notice ("Failed to import
+warp") would otherwise appear on every `import specrl_jax`.
 """
 
 import contextlib

@@ -78,8 +78,11 @@ def _import_warp():
 
 
 def _one_cuda_gpu() -> bool:
-    """Whether JAX computes on exactly one device, a GPU that Warp can run on (CUDA)."""
+    """Whether JAX computes on exactly one device, a GPU that Warp can run on (CUDA), in float32
+    (MuJoCo Warp is float32 only; with `jax_enable_x64` MJX-JAX computes in float64)."""
     if jax.default_backend() != "gpu" or jax.device_count() != 1 or not warp_available():
+        return False
+    if jax.dtypes.canonicalize_dtype(jnp.float64) == jnp.float64:
         return False
     return bool(_import_warp().is_cuda_available())
 
@@ -87,9 +90,10 @@ def _one_cuda_gpu() -> bool:
 def resolve_physics(physics: str, robot: str) -> str:
     """The backend that `ZoneConfig.physics` means on this machine.
 
-    "auto" is "warp" for the robots in `WARP_ROBOTS` when JAX runs on one CUDA GPU and
-    warp-lang is installed, else "jax". With several devices "auto" is "jax": MuJoCo Warp runs
-    as a foreign call that XLA cannot split across devices. "jax" and "warp" are kept as given.
+    "auto" is "warp" for the robots in `WARP_ROBOTS` when JAX runs on one CUDA GPU in float32
+    and warp-lang is installed, else "jax". With several devices "auto" is "jax": MuJoCo Warp
+    runs as a foreign call that XLA cannot split across devices; with `jax_enable_x64` too, as
+    MuJoCo Warp is float32 only. "jax" and "warp" are kept as given.
     """
     if physics not in PHYSICS:
         raise ValueError(f"unknown physics backend {physics!r}; accepted: {PHYSICS}")
