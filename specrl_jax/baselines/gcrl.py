@@ -51,6 +51,7 @@ from specrl_jax.tasks import SequenceSource, StatefulPolicy, TaskEnv
 GOAL_DIM = 24
 GOAL_SEED = 20231
 VALUE_THRESHOLD = 0.85
+PLANNERS = ("intended", "as_coded")  # test-time search: the original's description, or its code
 #: one-goal training tasks: reach one proposition, avoid nothing, uniformly over propositions
 REACH_ONE = Curriculum("gcrl/reach", (Stage((GenZSubgoals(max_avoid=0),)),))
 
@@ -488,7 +489,8 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
                 deterministic: bool = True, value_threshold: float = VALUE_THRESHOLD,
                 omega: float = search.OMEGA,
                 value_network: nn.Module = ValueFunction(),
-                temperature: float = primitives_lib.EVAL_TEMPERATURE) -> StatefulPolicy:
+                temperature: float = primitives_lib.EVAL_TEMPERATURE,
+                planner: str = "intended") -> StatefulPolicy:
     """GCRL-LTL's test-time agent as a `StatefulPolicy`; params `{"policy", "gcvf"}`.
 
     At the episode's start the value map is read off the first observation (critic V(s, p) for
@@ -503,7 +505,17 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
     task's accepting cycle) the agent pursues the first proposition it need not avoid, so that it
     keeps moving without nearing a danger, and turns away from any danger above the threshold.
     `temperature` scales the direction primitives' actions of a robot world (the original's 1.5).
+
+    `planner`: "intended" (the default, above) or "as_coded", the original's code where it
+    departs from its description (docs/fidelity.md "GCRL-LTL: edge cost", "avoid sets"): edge
+    costs `min(1 - V(s0, p), 0)` (`search.cost_matrix(as_coded=True)`: fewest steps wins,
+    values unread) and avoid sets of every proposition that would leave the automaton state
+    (the negated propositions of the plan node's self-loop), not only those leading to a
+    violation.
     """
+    if planner not in PLANNERS:
+        raise ValueError(f"GCRL-LTL planner {planner!r} is not one of {PLANNERS}")
+    as_coded = planner == "as_coded"
     alphabet_np = np.asarray(alphabet, bool)
     num_props = alphabet_np.shape[1]
     goals = jnp.asarray(goal_vectors(num_props))
@@ -523,7 +535,7 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
                                  jnp.broadcast_to(goals[:, None], (*grid, GOAL_DIM)),
                                  jnp.broadcast_to(goals[None], (*grid, GOAL_DIM))], -1)
         pair_values = value_network.apply(params["gcvf"], pairs)
-        costs = search.cost_matrix(start, pair_values)
+        costs = search.cost_matrix(start, pair_values, as_coded)
         to_go = search.cost_to_go(task_state.spec, costs, rows, empty, omega)
         minus = jnp.full((), -1, jnp.int32)
         return GCRLCarry(minus, jnp.int32(num_props), minus, minus, jnp.zeros(num_props, bool),
@@ -531,10 +543,11 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
 
     def replan(out, task_state, carry, last):
         spec, q = task_state.spec, task_state.q
-        first_cost = search.cost_matrix(out.value, jnp.zeros((num_props, num_props)))[num_props]
+        first_cost = search.cost_matrix(out.value, jnp.zeros((num_props, num_props)),
+                                        as_coded)[num_props]
         step = search.first_step(spec, q, last, first_cost, carry.to_go, rows, empty)
         nxt = spec.delta[q, jnp.maximum(rows, 0)]
-        avoid = (rows >= 0) & spec.violation[nxt]
+        avoid = (rows >= 0) & ((nxt != q) if as_coded else spec.violation[nxt])
         return GCRLCarry(q, last, step.goal, step.slot, avoid, carry.to_go)
 
     def apply(params, obs, task_state, carry: GCRLCarry, key):

@@ -57,17 +57,26 @@ def goal_symbols(alphabet: np.ndarray) -> tuple[np.ndarray, int]:
     return rows, int(empty[0]) if len(empty) else -1
 
 
-def cost_matrix(start_values: jax.Array, pair_values: jax.Array) -> jax.Array:
+def cost_matrix(start_values: jax.Array, pair_values: jax.Array,
+                as_coded: bool = False) -> jax.Array:
     """Edge costs from values: float32[P + 1, P], row g < P the cost of goal p right after goal g
     (`1 - pair_values[g, p]`, 0 to stay on the same goal), row P the first goal's
     (`1 - start_values[p]`); clipped at 0 (the original's intended cost, docs/fidelity.md),
     plus `HOP`.
+
+    `as_coded`: the original's code instead (`compute_cost`): every edge into goal p costs
+    `min(1 - start_values[p], 0)` (the single-goal value whatever the previous goal, and `min`
+    for `max`: 0 unless V > 1), plus `HOP`, at least 0; the search then prefers fewer steps,
+    not values, and breaks ties by proposition order (the original's Dijkstra: first found).
 
     Args:
         start_values: float32[P], the critic's V(s, p).
         pair_values: float32[P, P], the GCVF's value of goal p after goal g.
     """
     num_props = start_values.shape[-1]
+    if as_coded:
+        row = jnp.maximum(jnp.minimum(1.0 - start_values, 0.0) + HOP, 0.0)  # no negative cycles
+        return jnp.broadcast_to(row, (num_props + 1, num_props))
     pair = jnp.where(jnp.eye(num_props, dtype=bool), 1.0, pair_values)
     values = jnp.concatenate([pair, start_values[None]], axis=0)
     return jnp.maximum(1.0 - values, 0.0) + HOP

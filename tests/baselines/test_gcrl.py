@@ -4,6 +4,7 @@ the trained policy's trajectories, the test-time agent on specs, and the 0.85 sa
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 import specrl_jax
 from specrl_jax import automata
@@ -124,6 +125,27 @@ def test_agent_pursues_b_and_turns_away_from_a_above_the_threshold():
     assert int(act(jnp.array([0.9, 0.7]))[0][0]) == 1
     assert int(act(jnp.array([0.8, 0.7]))[0][0]) == 2  # closer than the goal but under 0.85
     assert int(act(jnp.array([0.9, 0.95]))[0][0]) == 2  # above 0.85 but the goal is closer
+
+
+def test_as_coded_planner_ignores_values_and_avoids_every_proposition_leaving_the_state():
+    """'F a & F b' with V(s, b) far above V(s, a): the intended search goes to b first and avoids
+    nothing; the original's code (costs `min(1 - V, 0)`) takes the first found order, a, and
+    avoids both a and b (the negated propositions of the self-loop)."""
+    world, params = specrl_jax.make("LetterLTL0-v0")
+    spec = automata.compile_spec("F a & F b", world.propositions, alphabet=world.alphabet)
+    task = TaskEnv(world, automata.stack([spec]))
+    obs, state = task.reset(jax.random.key(0), params, spec_index=0)
+    stub = {"logits": jnp.zeros((12, 4)), "values": jnp.zeros(12).at[:2].set(jnp.array([0.2, 0.9]))}
+    net = {"policy": stub, "gcvf": None}
+    for planner, goal, avoided in (("intended", 1, []), ("as_coded", 0, [0, 1])):
+        policy = gcrl.make_policy(_Stub(), world.alphabet, world.obs_kinds,
+                                  value_network=_PairStub(), planner=planner)
+        carry = policy.init(net, obs, state, jax.random.key(1))
+        _, carry = policy.apply(net, obs, state, carry, jax.random.key(2))
+        assert int(carry.goal) == goal, planner
+        assert np.nonzero(np.asarray(carry.avoid))[0].tolist() == avoided, planner
+    with pytest.raises(ValueError, match="as_coded"):
+        gcrl.make_policy(_Stub(), world.alphabet, world.obs_kinds, planner="original")
 
 
 class _LetterOracle:

@@ -130,6 +130,16 @@ def test_cost_matrix_reads_values_as_one_minus_v_clipped_with_free_stays():
                                rtol=1e-6)
 
 
+def test_as_coded_costs_read_only_single_goal_values_through_min():
+    """The original's `compute_cost`: `min(1 - V(s0, p), 0)` for every edge into p whatever the
+    previous goal (0 unless V > 1), plus HOP, never below 0."""
+    pair = jnp.array([[0.9, 0.6], [0.1, 0.3]])
+    costs = np.asarray(search.cost_matrix(jnp.array([0.25, 1.0005]), pair, as_coded=True))
+    hop = search.HOP
+    np.testing.assert_allclose(costs, [[hop, hop - 5e-4]] * 3, rtol=1e-4)
+    assert (np.asarray(search.cost_matrix(jnp.array([3.0, 0.5]), pair, as_coded=True)) >= 0).all()
+
+
 def test_unreachable_acceptance_gives_no_plan():
     alphabet = automata.zero_or_one(2)
     spec = automata.compile_spec("F a", ("a", "b"), alphabet=alphabet)
