@@ -76,6 +76,24 @@ def test_motor_torque_solves_the_box_problem():
         assert np.sum(np.abs(ref) > limit - 1e-6) > 0  # the bound was active
 
 
+#: the arms of every compiled motor step below (episodes padded to a multiple): one program per
+#: physics; at most 4 arms keep the gated solve to one sub-batch size (`compaction.where_needed`;
+#: a second size compiles the solve again, half as long again on a CPU)
+BATCH = 4
+
+
+@functools.cache
+def _batched_step(physics):
+    """`physics`' step of `BATCH` arms toward joint targets `base + 0.05 a`, jitted once."""
+    return jax.jit(jax.vmap(lambda s, base, a: physics.step(s, base + 0.05 * a)))
+
+
+def _arms(tree):
+    """`tree` (one arm's arrays) repeated for `BATCH` arms, float32."""
+    return jax.tree.map(lambda x: jnp.broadcast_to(jnp.asarray(x, jnp.float32),
+                                                   (BATCH, *np.shape(x))), tree)
+
+
 @pytest.fixture(scope="module")
 def physics():
     """Without table contacts (near the neutral pose the arm does not reach the table; the
@@ -87,14 +105,15 @@ def test_one_env_step_matches_mujoco_c_under_the_same_control(physics):
     model = arm_model.load_model(table_contacts=False)
     data = mujoco.MjData(model)
     rng = np.random.default_rng(1)
-    step = jax.jit(physics.step)
+    step = _batched_step(physics)
     state = physics.init(jnp.asarray(arm_model.NEUTRAL_QPOS, jnp.float32))
     data.qpos[:] = arm_model.NEUTRAL_QPOS
     for _ in range(3):
         target = np.asarray(state.qpos, np.float64) + 0.05 * rng.uniform(-1, 1, 7)
         data.qpos[:], data.qvel[:] = np.asarray(state.qpos), np.asarray(state.qvel)
         _c_step(model, data, target)
-        state = step(state, jnp.asarray(target, jnp.float32))
+        state = step(_arms(state), _arms(target), _arms(np.zeros(7)))
+        state = jax.tree.map(lambda x: x[0], state)
         assert np.abs(np.asarray(state.qpos) - data.qpos).max() < 2e-4
         assert np.abs(np.asarray(state.qvel) - data.qvel).max() < 2e-2
 
@@ -221,15 +240,20 @@ PYBULLET_ROLLOUTS = Path(__file__).parent / "data" / "arm_pybullet_rollouts.npz"
 
 def _rollouts_from_neutral(physics, actions):
     """float32[E, T+1, 7] joint angles of our arm under `actions` float[E, T, 7] (joint control,
-    targets `q + 0.05 a`), each episode from the neutral pose at rest."""
-    step = jax.jit(jax.vmap(lambda s, a: physics.step(s, s.qpos + 0.05 * a)))
-    neutral = jnp.asarray(arm_model.NEUTRAL_QPOS, jnp.float32)
-    state = jax.vmap(lambda _: physics.init(neutral))(jnp.arange(actions.shape[0]))
-    qpos = [np.asarray(state.qpos)]
-    for t in range(actions.shape[1]):
-        state = step(state, jnp.asarray(actions[:, t]))
-        qpos.append(np.asarray(state.qpos))
-    return np.stack(qpos, 1)
+    targets `q + 0.05 a`), each episode from the neutral pose at rest; `BATCH` episodes at a
+    time (`_batched_step`), the last ones padded with zero actions."""
+    step = _batched_step(physics)
+    padded = np.zeros((-(-len(actions) // BATCH) * BATCH, *actions.shape[1:]), np.float32)
+    padded[:len(actions)] = actions
+    episodes = []
+    for batch in np.split(padded, len(padded) // BATCH):
+        state = _arms(physics.init(jnp.asarray(arm_model.NEUTRAL_QPOS, jnp.float32)))
+        qpos = [np.asarray(state.qpos)]
+        for t in range(batch.shape[1]):
+            state = step(state, state.qpos, jnp.asarray(batch[:, t]))
+            qpos.append(np.asarray(state.qpos))
+        episodes.append(np.stack(qpos, 1))
+    return np.concatenate(episodes)[:len(actions)]
 
 
 def _gains_and_lags(actions, qpos):
