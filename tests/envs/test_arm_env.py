@@ -204,14 +204,6 @@ def _assert_valid(centres, config, keepout):
     assert not inside.any(), f"{inside.sum()} centres inside the robot keep-out"
 
 
-def _sampler(config):
-    """Our sampler over a batch of keys (jit + vmap), at XLA's default optimisation level: the
-    program runs longer than it compiles (400 benchmark layouts: 30 s at the suite's level 0,
-    14 s at level 3, which compiles in 1 s more)."""
-    return jax.jit(jax.vmap(lambda k: layout_lib.sample_centres(k, config)),
-                   compiler_options={"xla_backend_optimization_level": 3})
-
-
 def test_layouts_are_valid_and_distributed_as_the_original_sampler(monkeypatch):
     """Our sampler (jit + vmap) against the plain numpy reference above, on the benchmark's
     config (8 regions), then on 2 regions with one try per block, one continuation slot and two
@@ -224,7 +216,7 @@ def test_layouts_are_valid_and_distributed_as_the_original_sampler(monkeypatch):
     keepout = _ReferenceKeepout(config.region_radius, config.keepout)
     box = np.random.default_rng(2).uniform([-0.5, -0.3, 0.06], [0.2, 0.3, 0.56], (4000, 3))
     assert abs(keepout.clear(box).mean() - 0.543) < 0.03  # B3's measured share of the box
-    sample = _sampler(config)
+    sample = jax.jit(jax.vmap(lambda k: layout_lib.sample_centres(k, config)))
     ours, ok = sample(jax.random.split(jax.random.key(0), 400))
     ours = np.asarray(ours, np.float64)
     assert np.asarray(ok).all() and ours.shape == (400, 8, 3)
@@ -238,7 +230,7 @@ def test_layouts_are_valid_and_distributed_as_the_original_sampler(monkeypatch):
     config = ArmConfig(colors=("magenta", "blue"), regions_per_color=1, layouts_per_round=8,
                        exact_checks_per_round=2, continuation_slots=1)
     keepout = _ReferenceKeepout(config.region_radius, config.keepout)
-    sample = _sampler(config)
+    sample = jax.jit(jax.vmap(lambda k: layout_lib.sample_centres(k, config)))
     ours, ok = sample(jax.random.split(jax.random.key(1), 400))
     ours = np.asarray(ours, np.float64)
     assert np.asarray(ok).all()
