@@ -222,7 +222,7 @@ def load_params(method: str, env_id: str, path: str | Path, num_seeds: int,
                 env_options: dict[str, Any] | None = None,
                 method_options: dict[str, Any] | None = None) -> Any:
     """Read `params.msgpack` written by `train` (leading seed axis), or one seed's parameters
-    without that axis (`benchmarks/results/*_params_seed1.msgpack`), returned with it."""
+    without that axis (the results store's `params_seed1.msgpack`), returned with it."""
     world, env_params = make(env_id, **(env_options or {}))
     method_obj = make_method(method, world, env_params, family(env_id), method_options)
     # shapes only: running the env's reset and the network's init eagerly takes seconds on a CPU

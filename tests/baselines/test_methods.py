@@ -1,8 +1,6 @@
 """GenZ-LTL and DeepLTL through the task loop: learning on a tiny world, observation reduction,
 encoders, test-time agents."""
 
-from pathlib import Path
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -193,8 +191,9 @@ def test_committed_genz_parameters_give_the_same_network_with_the_library_convol
     import flax.linen as nn
 
     from specrl_jax.baselines import encoders, experiment
+    from specrl_jax.benchmark import store
 
-    path = Path(specrl_jax.__file__).parents[1] / "benchmarks/results/letterltl0_genz_params_seed1.msgpack"
+    path = store.params_path("LetterLTL0-v0/genz")
     params = jax.tree.map(lambda x: x[0], experiment.load_params("genz", "LetterLTL0-v0", path, 1))
     images = {"grid": jax.random.choice(jax.random.key(3), jnp.array([0.0, 0.2, 0.5, 1.0]), (16, 7, 7, 1))}
     current = genz.GenZNetwork().apply(params, images)

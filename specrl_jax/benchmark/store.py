@@ -1,0 +1,186 @@
+"""The results store: one directory per grid cell under `specrl_jax/benchmark/results/`
+(`grid.file_name(cell name)`, e.g. `LetterLTL0-v0__genz/`), shipped with the package:
+
+- `cell.json`: the cell's settings, state (`done` / `partial`), versions, device, wall times,
+  training summary and, per suite, the per-seed metrics (`{metric: [seed][spec]}`) with their
+  mean and std over seeds per spec and for the suite;
+- `params_seed1.msgpack`: seed 1's trained parameters (no seed axis; `experiment.load_params`
+  reads it with `num_seeds=1`);
+- `metrics.jsonl`: the training curve (one row per PPO update, seed means).
+
+A cell is `done` when every suite of its grid entry is evaluated on all its seeds, `partial`
+when some of it is, `missing` without a `cell.json`. `Store(root)` reads and writes another
+directory (e.g. a scratch store in tests); `scratch/` under a store holds resumable run
+directories and is not part of the results.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+from specrl_jax.benchmark import grid
+from specrl_jax.benchmark.grid import Cell
+
+DEFAULT_ROOT = Path(__file__).resolve().parent / "results"
+CELL_FILE = "cell.json"
+PARAMS_FILE = "params_seed1.msgpack"
+CURVE_FILE = "metrics.jsonl"
+SCRATCH = "scratch"
+STATES = ("done", "partial", "missing")
+SCHEMA = 1
+
+
+def _clean(x: Any) -> Any:
+    """JSON without NaN / inf (null instead), tuples as lists, numpy scalars as Python's."""
+    if isinstance(x, dict):
+        return {str(k): _clean(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_clean(v) for v in x]
+    if hasattr(x, "tolist") and not isinstance(x, (str, bytes)):
+        return _clean(x.tolist())
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def suite_entry(result: Any) -> dict[str, Any]:
+    """A `SuiteResult` (or the dict `eval.report.to_dict` writes for one) as the store keeps it:
+    settings, per-seed metrics and summary, without the per-episode tables."""
+    if not isinstance(result, dict):
+        r = result.result
+        result = {
+            "method": result.method, "specs": list(r.spec_names), "is_finite": r.is_finite.tolist(),
+            "seeds": list(r.seeds), "episodes_per_seed": r.episodes_per_seed,
+            "horizon": r.horizon, "summary": result.summary(),
+            "per_seed": {m: v.tolist() for m, v in r.per_seed().items()},
+        }
+    keys = ("method", "specs", "is_finite", "seeds", "episodes_per_seed", "horizon", "summary",
+            "per_seed")
+    return _clean({k: result[k] for k in keys})
+
+
+class Store:
+    """A results store rooted at `root` (default: the package's)."""
+
+    def __init__(self, root: str | os.PathLike | None = None):
+        self.root = Path(root) if root is not None else DEFAULT_ROOT
+
+    # --- paths ---------------------------------------------------------------------------
+    def cell_dir(self, cell: Cell | str) -> Path:
+        return self.root / grid.file_name(_name(cell))
+
+    def params_path(self, cell: Cell | str) -> Path:
+        return self.cell_dir(cell) / PARAMS_FILE
+
+    def curve_path(self, cell: Cell | str) -> Path:
+        return self.cell_dir(cell) / CURVE_FILE
+
+    def scratch_dir(self, cell: Cell | str) -> Path:
+        """Where `reproduce` keeps the cell's resumable run directory."""
+        return self.root / SCRATCH / grid.file_name(_name(cell))
+
+    # --- reading -------------------------------------------------------------------------
+    def read(self, cell: Cell | str) -> dict[str, Any] | None:
+        path = self.cell_dir(cell) / CELL_FILE
+        if not path.exists():
+            return None
+        return json.loads(path.read_text())
+
+    def names(self) -> list[str]:
+        """Names of the cells the store holds, sorted."""
+        if not self.root.exists():
+            return []
+        return sorted(grid.cell_name(p.parent.name) for p in self.root.glob(f"*/{CELL_FILE}"))
+
+    def state(self, cell: Cell) -> str:
+        """`done`, `partial` or `missing` against the grid entry `cell` (its suites and seeds)."""
+        record = self.read(cell)
+        if record is None:
+            return "missing"
+        return "done" if not missing_work(cell, record) else "partial"
+
+    def load_params(self, cell: Cell | str) -> Any:
+        """Seed 1's parameters with a leading seed axis of 1 (`experiment.load_params`)."""
+        from specrl_jax.baselines import experiment
+
+        c = grid.cell(cell) if isinstance(cell, str) else cell
+        return experiment.load_params(c.method, c.env_id, self.params_path(c), 1,
+                                      env_options=dict(c.env_options) or None,
+                                      method_options=c.options() or None)
+
+    # --- writing -------------------------------------------------------------------------
+    def write(self, cell: Cell | str, record: dict[str, Any]) -> Path:
+        """Write `cell.json` (keys sorted, atomically), with its state recomputed when `cell`
+        is a grid entry."""
+        if isinstance(cell, Cell):
+            record = dict(record, state="done" if not missing_work(cell, record) else "partial")
+        path = self.cell_dir(cell) / CELL_FILE
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(_clean(record), indent=1, sort_keys=True) + "\n")
+        tmp.replace(path)
+        return path
+
+    def new_record(self, cell: Cell) -> dict[str, Any]:
+        return {"schema": SCHEMA, "cell": cell.name, "config": cell.config(), "state": "partial",
+                "suites": {}, "training": {}, "wall_s": {}, "versions": {}, "device": None}
+
+    def add_suites(self, cell: Cell, results: Iterable[Any], wall_s: float | None = None) -> dict:
+        """Merge evaluated suites (`SuiteResult`s) into the cell's record and write it."""
+        record = self.read(cell) or self.new_record(cell)
+        for result in results:
+            record["suites"][result.suite] = suite_entry(result)
+        if wall_s is not None:
+            record["wall_s"]["eval"] = record["wall_s"].get("eval", 0.0) + float(wall_s)
+        self.write(cell, record)
+        return record
+
+
+def _name(cell: Cell | str) -> str:
+    return cell.name if isinstance(cell, Cell) else cell
+
+
+def missing_work(cell: Cell, record: dict[str, Any]) -> list[str]:
+    """What `record` lacks to complete grid entry `cell`: `train` when its training is not
+    complete, and the suites not evaluated on all of its seeds."""
+    todo = []
+    if cell.trains and not record.get("training", {}).get("complete", False):
+        todo.append("train")
+    seeds = list(range(1, cell.seeds + 1))
+    for suite in cell.suites:
+        entry = record.get("suites", {}).get(suite)
+        if entry is None or list(entry.get("seeds", [])) != seeds \
+                or entry.get("episodes_per_seed") != cell.episodes:
+            todo.append(suite)
+    return todo
+
+
+def suite_seeds(record: dict[str, Any]) -> int:
+    """The fewest seeds any evaluated suite of a record has (0 if none)."""
+    counts = [len(e.get("seeds", [])) for e in record.get("suites", {}).values()]
+    return min(counts) if counts else 0
+
+
+def suite_metric(entry: dict[str, Any], metric: str) -> tuple[float | None, float | None]:
+    """(mean, std) over seeds of a suite's `metric` (the record's summary; None if not there)."""
+    group = next(iter(entry["summary"]["groups"].values()), {})
+    return group.get(f"{metric}_mean"), group.get(f"{metric}_std")
+
+
+def default() -> Store:
+    return Store()
+
+
+def params_path(cell: Cell | str, root: str | os.PathLike | None = None) -> Path:
+    """Path of a cell's seed-1 parameters in the store (default: the package's)."""
+    return Store(root).params_path(cell)
+
+
+def states(cells: Sequence[Cell], store: Store | None = None) -> dict[str, str]:
+    store = store or Store()
+    return {c.name: store.state(c) for c in cells}
