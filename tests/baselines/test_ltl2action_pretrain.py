@@ -98,10 +98,10 @@ def test_prepare_training_pretrains_on_the_methods_own_formulas_when_asked(monke
 
 @pytest.mark.parametrize("env_id", ["LetterLTL0-v0", "PointLTL0-v0"])
 def test_committed_encoders_fit_the_networks_of_their_worlds(env_id):
-    """The encoders in benchmarks/results (README, RESULTS) load for their world's propositions,
+    """The shipped encoders (baselines/data, README) load for their world's propositions,
     have the shapes of that world's R-GCN, and say which world they were pretrained on."""
-    results = Path(__file__).resolve().parents[2] / "benchmarks" / "results"
-    stem = results / f"{env_id.split('-')[0].lower()}_ltl2action_bootcamp_encoder"
+    data = Path(specrl_jax.__file__).resolve().parent / "baselines" / "data"
+    stem = data / f"ltl2action_encoder_{'letter' if env_id.startswith('Letter') else 'zone'}"
     assert json.loads(stem.with_suffix(".json").read_text())["env"] == env_id
     world, _ = specrl_jax.make(env_id)
     num_props = len(world.propositions)
