@@ -117,7 +117,7 @@ def gpu_step(batch: int, steps: int, repeats: int, unrolls: list[int]) -> None:
     # Three LetterWorld steps: "raw" (no resets) folds the observation into a checksum, so XLA
     # never writes it; "raw, obs out" writes it each step, as anything that uses it must;
     # "auto-reset" is `batch(env, B)` with the opt-in map-bank resets (the fastest resetting
-    # step; the default exact resets are far dearer, see RESULTS.md). Every variant folds labels
+    # step; the default exact resets are far dearer, see docs/results.md). Every variant folds labels
     # and done flags into the checksum too. The automaton's outputs are kept per env, as an
     # evaluator keeps them.
     # "task" is the whole task layer on the same resetting world: `TaskEnv.step` (automaton,

@@ -15,7 +15,7 @@ Car and Ant on one CUDA GPU with warp-lang, MJX's JAX implementation otherwise);
 names the backend that ran, e.g. `CarLTL0-v0 (warp)`. `--solver KEY=VALUE ...`
 overrides fields of a Zone env's physics settings (`zone.Solver`), named in the env column too.
 
-Results are appended to benchmarks/RESULTS.md (or --results) with device, versions, date, command.
+Results are appended to docs/results.md (or --results) with device, versions, date, command.
 """
 
 from __future__ import annotations
@@ -192,7 +192,7 @@ def parse_args() -> argparse.Namespace:
         help="Zone envs: overrides of the env's `Solver` fields (ints, True/False or names), "
         "e.g. max_contacts=0 substep_sensors=True for the settings before issue 18",
     )
-    parser.add_argument("--results", default="benchmarks/RESULTS.md")
+    parser.add_argument("--results", default="docs/results.md")
     args = parser.parse_args()
     args.solver = dict(_override(pair, parser) for pair in args.solver)
     known = specrl_jax.list_envs()

@@ -109,7 +109,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--collisions", action="store_true", help="turn the collision switch on")
-    parser.add_argument("--results", default="benchmarks/RESULTS.md")
+    parser.add_argument("--results", default="docs/results.md")
     args = parser.parse_args()
     written = False
     for env_id in args.envs:

@@ -6,7 +6,7 @@ state elements differ between the two runs and by how much at most. MuJoCo Warp 
 forces with atomic adds on a GPU, so its runs may differ in the last bits where MJX-JAX's
 repeat exactly (warp-lang 1.19's deterministic atomics, `warp.config.deterministic`, cannot
 compile MuJoCo Warp's kernels: `smooth._qLD_acc` reads an array it also updates atomically).
-Results are appended to benchmarks/RESULTS.md (or --results).
+Results are appended to docs/results.md (or --results).
 
     python benchmarks/physics_determinism.py --envs CarLTL0-v0 AntLTL0-v0 --physics jax warp
 """
@@ -56,7 +56,7 @@ def main() -> None:
                         default=["jax", "warp"])
     parser.add_argument("--batch", type=int, default=4096)
     parser.add_argument("--steps", type=int, default=100)
-    parser.add_argument("--results", default="benchmarks/RESULTS.md")
+    parser.add_argument("--results", default="docs/results.md")
     args = parser.parse_args()
     flags = os.environ.get("XLA_FLAGS")
     lines = [

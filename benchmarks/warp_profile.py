@@ -6,7 +6,7 @@ Ant's capsule contacts with MuJoCo C's frame as `physics="warp"` installs them) 
 MuJoCo Warp, `--worlds` worlds from the env's start pose under uniform random controls, the
 contact buffer sized as `zone.physics.Physics` sizes it. Prints, per robot, the mean time per
 physics substep of each stage (nested stages indented) and the share of the whole step; appends
-the table to benchmarks/RESULTS.md (or --results). Needs warp-lang and a CUDA GPU (on a CPU,
+the table to docs/results.md (or --results). Needs warp-lang and a CUDA GPU (on a CPU,
 Warp records no events).
 
     python benchmarks/warp_profile.py --robots Car Ant --worlds 262144 --substeps 50
@@ -87,7 +87,7 @@ def main() -> None:
     parser.add_argument("--worlds", type=int, default=65536)
     parser.add_argument("--substeps", type=int, default=50, help="timed physics substeps")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--results", default="benchmarks/RESULTS.md")
+    parser.add_argument("--results", default="docs/results.md")
     args = parser.parse_args()
     wp = _import_warp()
     if not wp.is_cuda_available():

@@ -11,7 +11,7 @@ layout bank (the setting where zone motion weighs most: no rejection sampler), m
 `env_throughput.py` does (scan of random-action steps, every output folded into a checksum); the
 two motions are timed in alternation, `--repeats` rounds, best and median per motion.
 
-Results are appended to benchmarks/RESULTS.md (or --results).
+Results are appended to docs/results.md (or --results).
 """
 
 from __future__ import annotations
@@ -117,7 +117,7 @@ def main() -> None:
     parser.add_argument("--call-steps", type=int, default=20, help="env steps per compiled call")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--bank-size", type=int, default=65536)
-    parser.add_argument("--results", default="benchmarks/RESULTS.md")
+    parser.add_argument("--results", default="docs/results.md")
     args = parser.parse_args()
     if args.fidelity:
         text = header("Zone: moving zones against the original's weld in MuJoCo C")

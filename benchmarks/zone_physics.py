@@ -13,7 +13,7 @@ labels or resets: what the physics alone allows. `--physics warp` measures MuJoC
 (needs warp-lang). `--mjx-frame` gives MJX-JAX MJX 3.17's own capsule-plane contact frame instead
 of MuJoCo C's (the Ant before `contact_frame.py`; A/B only). `--set KEY=VALUE ...` overrides
 other `Solver` fields (e.g. `max_contacts=4`). Results are appended to
-benchmarks/RESULTS.md.
+docs/results.md.
 """
 
 from __future__ import annotations
@@ -170,7 +170,7 @@ def main() -> None:
         help="overrides of Solver fields (ints or True/False) on top of the robot's default or "
         "--solver, e.g. max_contacts=4",
     )
-    parser.add_argument("--results", default="benchmarks/RESULTS.md")
+    parser.add_argument("--results", default="docs/results.md")
     args = parser.parse_args()
     args.set = {k: (v == "True" if v in ("True", "False") else int(v))
                 for k, _, v in (pair.partition("=") for pair in args.set)}

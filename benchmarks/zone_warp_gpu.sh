@@ -36,7 +36,7 @@ elif [ "$1" = 4 ]; then  # session 3: the Car from its resting height, line-sear
   measure 150 benchmarks/env_throughput.py --envs AntLTL0-v0 --physics warp --batches 65536 262144 --resets exact --steps 10 --repeats 2
   measure 100 benchmarks/zone_physics.py --physics warp --robots Car Ant --steps 30 --seeds 3
   measure 120 benchmarks/env_throughput.py --envs CarLTL0-v0 --batches 16384 65536 --resets exact --steps 10 --repeats 2
-elif [ "$1" = 3 ]; then  # third session: line-search cap 4 (C: no change, see RESULTS.md), physics only
+elif [ "$1" = 3 ]; then  # third session: line-search cap 4 (C: no change, see docs/fidelity.md), physics only
   measure 80 benchmarks/zone_physics.py --robots Car --steps 0 --batches 65536 --bench-steps 10
   measure 80 benchmarks/zone_physics.py --robots Car --steps 0 --batches 65536 --bench-steps 10 --solver 10 4 6
   measure 100 benchmarks/zone_physics.py --robots Ant --steps 0 --batches 16384 --bench-steps 5

@@ -159,7 +159,7 @@ def test_warp_nested_batches_match_single_worlds():
 def test_warp_tracks_mujoco_c_from_a_settled_car():
     """From a Car at rest on its wheels (200 substeps of MuJoCo C), 10 env steps of random
     actions: MuJoCo Warp stays with MuJoCo C (measured ~1e-6 m; from the env's start, where the
-    wheels exactly touch the floor, the first contact differs, see RESULTS.md)."""
+    wheels exactly touch the floor, the first contact differs, see docs/fidelity.md)."""
     env, params = specrl_jax.make("CarLTL0-v0", physics="warp")
     physics: Physics = env.physics
     _, state = jax.jit(env.reset)(jax.random.key(4), params)
@@ -188,7 +188,7 @@ def test_warp_ant_contacts_take_mujoco_cs_frame():
     """A Warp Ant gives MuJoCo Warp C's capsule-plane frame (process-wide): at a settled Ant
     state (4 foot contacts, capsules ~10 degrees from the floor normal) Warp's forward pass
     has C's contact frames and C's accelerations under the original's pyramidal cone (Warp's
-    own frame, world y as first tangent, departs by 12% of qacc there: RESULTS.md)."""
+    own frame, world y as first tangent, departs by 12% of qacc there: docs/fidelity.md)."""
     from specrl_jax.envs.zone import warp_contact_frame
     from specrl_jax.envs.zone.mjx_import import mjx
     from specrl_jax.envs.zone.models import load_model

@@ -112,7 +112,7 @@ def test_mjx_tracks_mujoco_c(robot, steps, bound):
     (float64) on the same model; the fact sheet measured about 1e-3 m for the original. The
     free-running float32 Car departs on some seeds after ~10-40 random-action steps, where its
     dynamics amplify MJX's float32 errors (C's own spread under float32-sized perturbations
-    stays ~1e-6 m there; benchmarks/RESULTS.md); `test_mjx_car_steps_agree_with_mujoco_c` and
+    stays ~1e-6 m there; docs/fidelity.md); `test_mjx_car_steps_agree_with_mujoco_c` and
     `test_mjx_car_in_float64_tracks_c_within_cs_own_spread` cover more."""
     env, params, reset, step = zone(robot)
     rng = np.random.default_rng(1)
@@ -156,7 +156,7 @@ def test_mjx_car_steps_agree_with_mujoco_c():
     """From the env's reset, each env step of MJX (float32) agrees with MuJoCo C started from
     MJX's state to 1e-5 m, the first step included (from the original's spawn height C finds
     no contact there while MJX finds five: ~1e-3 m). Free-running, the Car's own dynamics
-    amplify float32 rounding at some contact events (benchmarks/RESULTS.md), so the per-step
+    amplify float32 rounding at some contact events (docs/fidelity.md), so the per-step
     error is what bounds the model difference over many seeds."""
     env, params, reset, step = zone("Car")
     data = mujoco.MjData(env.mj_model)
@@ -184,7 +184,7 @@ def test_mjx_car_in_float64_tracks_c_within_cs_own_spread():
     rounding step (a random +-2^-24 relative) after every env step. Measured: MJX <= 1.5e-7 m,
     spread 3e-7 to 1.4e-6 m. In float32, MJX departs by 4e-3 to 0.18 m on 3 of these seeds
     where the spread stays ~1e-6 (a float32 effect, not C's sensitivity); in float64, seed 7
-    departs at step 41 by a one-step error of 1.4e-5 m, cause not found (benchmarks/RESULTS.md)."""
+    departs at step 41 by a one-step error of 1.4e-5 m, cause not found (docs/fidelity.md)."""
     worst = []
     with jax.enable_x64(True):
         env, params = make_zone(level_config("Car", 0, physics="jax"))
@@ -309,7 +309,7 @@ def test_mjx_ant_tracks_mujoco_c():
     1e-4 m, joints within 1e-3 rad (measured offline: 2e-5 m, 1.3e-4 rad on 6 seeds). Against MuJoCo C
     4.0's own RK4 step, 3 env steps: torso within 2e-4 m, joints within 5e-4 rad (measured 2e-5
     m, 4e-5 rad; MJX's own contact frame is off by 7e-4 m and 3e-3 rad after one step); C 4.0's
-    RK4 departs from the classic one by ~1e-2 m within 10 steps (benchmarks/RESULTS.md)."""
+    RK4 departs from the classic one by ~1e-2 m within 10 steps (docs/fidelity.md)."""
     env, params, reset, step = zone("Ant")
     assert env.physics.c_contact_frame
     worst = np.zeros(4)  # torso, joints against classic RK4 (10 steps), against C 4.0 (3 steps)

@@ -10,7 +10,7 @@ def classic_rk4_step(model: mujoco.MjModel, data: mujoco.MjData) -> None:
     """One classic RK4 step (tableau A = diag(1/2, 1/2, 1), B = (1, 2, 2, 1) / 6) on MuJoCo C's
     forward dynamics, in place: the scheme of MJX 3.17 and of MuJoCo 2.3's `mj_RungeKutta`.
     MuJoCo C 4.0's own RK4 step departs from it (up to 3.5e-5 in qpos per substep on the Ant;
-    benchmarks/RESULTS.md)."""
+    docs/fidelity.md)."""
     h, weights = model.opt.timestep, np.array([1, 2, 2, 1]) / 6
     mujoco.mj_forward(model, data)
     qpos, qvel = data.qpos.copy(), data.qvel.copy()

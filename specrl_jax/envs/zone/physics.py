@@ -35,7 +35,7 @@ BACKENDS = ("jax", "warp")
 #: Accepted values of `ZoneConfig.physics`: a backend, or "auto" (`resolve_physics`).
 PHYSICS = ("auto", *BACKENDS)
 #: Robots that "auto" steps with MuJoCo Warp on one NVIDIA GPU: MJX-JAX runs their contacts
-#: 4-14x slower there (benchmarks/RESULTS.md); the contact-free Point is faster on MJX-JAX.
+#: 4-14x slower there (docs/results.md); the contact-free Point is faster on MJX-JAX.
 WARP_ROBOTS = ("Car", "Ant")
 SUBSTEPS = 10
 
