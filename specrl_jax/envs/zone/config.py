@@ -22,7 +22,7 @@ LEVEL_KEEPOUT = {0: 0.55, 1: 0.65, 2: 0.70}
 DEFAULT_SOLVERS = {
     "Point": Solver(iterations=1, ls_iterations=4, condim=6),  # no contacts: nothing to solve
     # Line search capped at 4: MuJoCo C trajectories move by < 1e-6 m (tested), MJX-JAX runs
-    # 31% (Car) and 61% (Ant) faster on an H100 (benchmarks/RESULTS.md). At most 5 (Car) / 4
+    # 31% (Car) and 61% (Ant) faster on an H100 (docs/fidelity.md). At most 5 (Car) / 4
     # (Ant) contacts reach the solver: no more ever penetrate at once in MuJoCo C rollouts of a
     # live robot (tested), so only constraint rows that stay empty are dropped (fidelity row
     # "zone: contacts passed to the solver").
