@@ -23,7 +23,8 @@ import flax
 import jax
 import numpy as np
 
-from specrl_jax.baselines import experiment, ltl2action, ltl2action_pretrain
+from specrl_jax.baselines import experiment, ltl2action
+from specrl_jax.baselines.ltl2action import pretrain as ltl2action_pretrain
 from specrl_jax.envs.registry import make
 
 
@@ -57,7 +58,7 @@ def main() -> None:
                                              ("num_minibatches", args.minibatches))
              if value is not None}
     start = time.perf_counter()
-    encoder = ltl2action_pretrain.pretrain_encoder(
+    encoder = ltl2action.pretrain_encoder(
         np.asarray(world.alphabet), tuple(world.propositions), formulas, stages, family,
         jax.random.key(args.seed), args.steps, log, **shape)
     wall = time.perf_counter() - start

@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from specrl_jax.baselines import rad_encoder, rad_pretrain
+from specrl_jax.baselines.rad import encoder as rad_encoder, rad_pretrain
 from specrl_jax.baselines.ppo import make_train, rollout
 from specrl_jax.envs.registry import make
 

@@ -240,7 +240,7 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
     arg("--seeds", type=positive_int, default=1, help="independent runs trained side by side"),
     arg("--seed", type=nonnegative_int, default=0, help="base seed of the runs (default 0)"),
     arg("--total-steps", type=positive_int, default=None,
-        help="env interactions per run (default 15M on an accelerator, 1M on a CPU)"),
+        help="env interactions per run (default 15M on an accelerator, 200k on a CPU)"),
     arg("--num-envs", type=positive_int, default=None, help="envs stepped side by side per run"),
     arg("--num-steps", type=positive_int, default=None, help="rollout steps per env and update"),
     arg("--restart", action="store_true", help="discard a run already in --out instead of resuming it"),
@@ -262,9 +262,11 @@ def train_command(args: argparse.Namespace) -> int:
     from specrl_jax.baselines import experiment
     from specrl_jax.eval import report
 
+    from specrl_jax import families
+
     platform = jax.devices()[0].platform
     world_family = experiment.family(args.env)
-    total = args.total_steps or (15_000_000 if platform != "cpu" else 1_000_000)
+    total = args.total_steps or families.default_total_steps(platform)
     overrides = experiment.default_overrides(platform, total, world_family)
     overrides.update({k: v for k, v in (("num_envs", args.num_envs), ("num_steps", args.num_steps))
                       if v is not None})
@@ -309,8 +311,10 @@ def run_command(args: argparse.Namespace) -> int:
     from specrl_jax.baselines import experiment
     from specrl_jax.eval import report
 
+    from specrl_jax import families
+
     gpu = jax.devices()[0].platform != "cpu"
-    total = args.total_steps or (15_000_000 if gpu else 200_000)
+    total = args.total_steps or families.default_total_steps(jax.devices()[0].platform)
     seeds = args.seeds or (5 if gpu else 1)
     episodes = args.episodes or (100 if gpu else 20)
     out = Path(args.out)

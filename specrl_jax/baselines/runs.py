@@ -11,16 +11,16 @@ import dataclasses
 import json
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax import serialization
 
 from specrl_jax.automata.tensors import pack_step_planes
+from specrl_jax.baselines.params_io import load_params, load_params_into, save_params
 from specrl_jax.baselines.ppo.train import RunnerState, Trainer
 
 CHECKPOINT = "checkpoint.msgpack"
@@ -28,10 +28,7 @@ CHECKPOINT = "checkpoint.msgpack"
 
 def save_checkpoint(path: str | os.PathLike, runner: RunnerState) -> None:
     """Write `runner` atomically (typed PRNG keys are stored as raw key data)."""
-    runner = jax.device_get(runner.replace(key=jax.random.key_data(runner.key)))
-    tmp = Path(f"{path}.tmp")
-    tmp.write_bytes(serialization.to_bytes(runner))
-    tmp.replace(path)
+    save_params(path, runner.replace(key=jax.random.key_data(runner.key)))
 
 
 def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerState:
@@ -42,13 +39,11 @@ def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerSta
     """
     raw = template.replace(key=jax.random.key_data(template.key))
     try:
-        stored = add_derived_spec_fields(serialization.msgpack_restore(Path(path).read_bytes()))
-        restored = serialization.from_state_dict(jax.device_get(raw), stored)
-    except Exception as err:  # msgpack and flax raise assorted types for a damaged file
-        raise ValueError(
-            f"checkpoint {path} cannot be read ({type(err).__name__}: {err}); delete it, or start "
-            "over with --restart, or use another --out"
-        ) from err
+        stored = add_derived_spec_fields(load_params(path, what="training checkpoint"))
+        restored = load_params_into(jax.device_get(raw), stored)
+    except ValueError as err:
+        raise ValueError(f"checkpoint {path} cannot be read ({err}); delete it, or start over "
+                         "with --restart, or use another --out") from err
     restored = jax.tree.map(lambda t, x: jax.device_put(np.asarray(x), t.sharding), raw, restored)
     return restored.replace(key=jax.random.wrap_key_data(restored.key))
 
@@ -93,6 +88,29 @@ def seed_batched(trainer: Trainer, num_seeds: int) -> Callable:
     return single
 
 
+def init_seeds(trainer: Trainer, key: jax.Array, num_seeds: int) -> RunnerState:
+    """`num_seeds` initial runner states from `key`, stacked on a leading seed axis."""
+    # Seeds are initialised one by one: a vmapped orthogonal init (batched QR) hangs on XLA:CPU.
+    init = jax.jit(trainer.init)
+    seeds = [init(k) for k in jax.random.split(key, num_seeds)]
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *seeds)
+
+
+def train_chunks(trainer: Trainer, runner: RunnerState, num_seeds: int, chunk_updates: int,
+                 total: int) -> Iterator[tuple[RunnerState, dict[str, Any], int, int]]:
+    """The one training driver: from `runner`'s update (seed axis first) to `total`, in chunks of
+    at most `chunk_updates` updates. Yields `(runner, metrics [seeds, chunk_updates] on the host,
+    updates in this chunk, updates done)` after each chunk, so callers log, checkpoint or stop."""
+    # One compiled chunk for every chunk: a shorter last chunk runs the same scan, partly idle.
+    updates = jax.jit(seed_batched(trainer, num_seeds), static_argnums=1, donate_argnums=0)
+    done = int(runner.update[0])
+    while done < total:
+        n = min(chunk_updates, total - done)
+        runner, metrics = updates(runner, chunk_updates, jnp.int32(n))
+        done += n
+        yield runner, jax.device_get(metrics), n, done
+
+
 def train_in_run_dir(
     trainer: Trainer,
     key: jax.Array,
@@ -134,27 +152,19 @@ def train_in_run_dir(
         (run_dir / "config.json").write_text(json.dumps(config, indent=2))
     except OSError as err:
         raise ValueError(f"cannot write to the run directory {run_dir}: {err.strerror}") from err
-    # Seeds are initialised one by one: a vmapped orthogonal init (batched QR) hangs on XLA:CPU.
-    init = jax.jit(trainer.init)
-    seeds = [init(k) for k in jax.random.split(key, num_seeds)]
-    runner = jax.tree.map(lambda *xs: jnp.stack(xs), *seeds)
+    runner = init_seeds(trainer, key, num_seeds)
     wall_before = 0.0
     if (run_dir / CHECKPOINT).exists():
         runner = load_checkpoint(run_dir / CHECKPOINT, runner)
         wall_before = _wall_at(run_dir, int(runner.update[0]))
         log(f"resumed at update {int(runner.update[0])} from {run_dir / CHECKPOINT} "
             f"after {wall_before:.1f}s of training")
-    # One compiled chunk for every chunk: a shorter last chunk runs the same scan, partly idle.
-    updates = jax.jit(seed_batched(trainer, num_seeds), static_argnums=1, donate_argnums=0)
     total = cfg.num_updates if max_updates is None else min(cfg.num_updates, max_updates)
     start_wall = time.perf_counter()
-    done_at_start = done = int(runner.update[0])
+    done_at_start = int(runner.update[0])
     with open(run_dir / "metrics.jsonl", "a") as out:
-        while done < total:
-            n = min(chunk_updates, total - done)
-            runner, metrics = updates(runner, chunk_updates, jnp.int32(n))
-            rows = _rows(jax.device_get(metrics), n, summarise)
-            done += n
+        for runner, metrics, n, done in train_chunks(trainer, runner, num_seeds, chunk_updates, total):
+            rows = _rows(metrics, n, summarise)
             elapsed = time.perf_counter() - start_wall
             for i, row in enumerate(rows):
                 update = done - n + i + 1

@@ -53,6 +53,9 @@ class Env(abc.ABC):
     #: observation key -> its kind (one of `OBS_KINDS`); `ap` is the proposition-dependent part
     obs_kinds: dict[str, str]
 
+    #: the name of the world's family record (`specrl_jax.families`): horizon, suites, settings
+    family: str
+
     @property
     @abc.abstractmethod
     def default_params(self) -> Any:

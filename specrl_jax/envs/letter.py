@@ -147,6 +147,7 @@ class LetterWorld(Env):
     """
 
     obs_kinds = {"ap": "grid", "ego": "grid"}
+    family = "letter"
 
     def __init__(self, config: LetterConfig = LetterConfig()):
         if not isinstance(config, LetterConfig):

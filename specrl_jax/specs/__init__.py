@@ -35,7 +35,15 @@ from specrl_jax.specs.sequences import (
     sample_task,
 )
 from specrl_jax.specs.sequences import sample_reach_avoid as sample_reach_avoid_sequence
-from specrl_jax.specs.suites import SuiteInfo, complexity_formulas, list_suites, suite, suite_info
+from specrl_jax.specs.suites import (
+    SuiteInfo,
+    complexity_formulas,
+    list_suites,
+    register_suite,
+    suite,
+    suite_info,
+    unregister_suite,
+)
 
 __all__ = [
     "CURRICULA",
@@ -54,6 +62,7 @@ __all__ = [
     "genz_tasks",
     "is_satisfiable",
     "list_suites",
+    "register_suite",
     "ltl2action_sampler",
     "parse",
     "reach_avoid_formula",
@@ -69,4 +78,5 @@ __all__ = [
     "sequence_to_formula",
     "suite",
     "suite_info",
+    "unregister_suite",
 ]

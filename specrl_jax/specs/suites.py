@@ -28,6 +28,7 @@ from typing import Literal
 import numpy as np
 import yaml
 
+from specrl_jax.families import INFINITE_HORIZON_FACTOR
 from specrl_jax.specs import formulas
 from specrl_jax.specs.satisfiable import Alphabet
 
@@ -40,9 +41,6 @@ COMPLEXITY_DISJ = (0, 1, 2, 3)
 COMPLEXITY_KINDS = ("reach_only", "reach_avoid")
 
 
-#: infinite-horizon suites run this many finite horizons: the smallest round factor consistent with
-#: the paper's tables (its Zone persistence figures count more visits than 1,000 steps hold)
-INFINITE_HORIZON_FACTOR = 10
 
 
 @dataclasses.dataclass(frozen=True)
@@ -207,9 +205,36 @@ def _complexity_suite(name: str) -> SuiteInfo:
     )
 
 
+#: suites added at run time (`register_suite`): a user's own, or a test's
+_REGISTERED: dict[str, SuiteInfo] = {}
+
+
+def register_suite(name: str, formulas_: tuple[str, ...] | list[str], propositions: tuple[str, ...],
+                   horizon: Literal["finite", "infinite"] = "finite", env_family: str = "",
+                   alphabet: Alphabet = "zero_or_one", source: str = "registered") -> SuiteInfo:
+    """Add a named suite of `formulas_` over `propositions` (e.g. for a world family of one's own).
+
+    Raises:
+        ValueError: the name is taken, or no formula is given.
+    """
+    if name in _static_suites() or name in _complexity_names() or name in _REGISTERED:
+        raise ValueError(f"suite {name!r} already exists")
+    if not formulas_:
+        raise ValueError(f"suite {name!r} has no formula")
+    info = SuiteInfo(name, tuple(formulas_), tuple(propositions), horizon, env_family, alphabet,
+                     source)
+    _REGISTERED[name] = info
+    return info
+
+
+def unregister_suite(name: str) -> None:
+    """Remove a suite added by `register_suite`."""
+    _REGISTERED.pop(name, None)
+
+
 def list_suites(prefix: str = "") -> list[str]:
     """Every suite name (starting with `prefix`), sorted."""
-    names = list(_static_suites()) + list(_complexity_names())
+    names = list(_static_suites()) + list(_complexity_names()) + list(_REGISTERED)
     return sorted(n for n in names if n.startswith(prefix))
 
 
@@ -224,6 +249,8 @@ def suite_info(name: str) -> SuiteInfo:
     static = _static_suites()
     if name in static:
         return static[name]
+    if name in _REGISTERED:
+        return _REGISTERED[name]
     if name in _complexity_names():
         return _complexity_suite(name)
     known = list_suites()

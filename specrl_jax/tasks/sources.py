@@ -174,6 +174,13 @@ class SequenceTask:
         """int32[]: the pair being followed."""
         return jnp.minimum(self.done, self.pairs - 1)
 
+    def current_masks(self, alphabet: jax.Array) -> tuple[jax.Array, jax.Array]:
+        """The current pair as proposition masks `(reach, avoid)`, bool[P] each, given the
+        alphabet bool[A, P]."""
+        reach = jnp.any(self.reach[self.current][:, None] & alphabet, axis=0)
+        avoid = jnp.any(self.avoid[self.current][:, None] & alphabet, axis=0)
+        return reach, avoid
+
 
 def symbol_sets(props: jax.Array, alphabet: jax.Array, with_empty: jax.Array | None = None) -> jax.Array:
     """Proposition masks bool[..., P] -> symbol sets bool[..., A]: the symbols making some masked

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 
 from specrl_jax.baselines.ppo.networks import MLP, DiscreteHead, PolicyOutput, critic
 from specrl_jax.baselines.ppo.rollout import StepResult
+from specrl_jax.baselines.ppo.train import Method
 
 LENGTH, HORIZON = 5, 12
 
@@ -55,7 +56,7 @@ class ChainNet(nn.Module):
 
 
 @dataclasses.dataclass(frozen=True)
-class ChainMethod:
+class ChainMethod(Method):
     env: ChainEnv = dataclasses.field(default_factory=ChainEnv)
     network: ChainNet = dataclasses.field(default_factory=ChainNet)
 

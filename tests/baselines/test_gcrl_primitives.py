@@ -7,7 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from specrl_jax.baselines import gcrl, gcrl_primitives as prim
+from specrl_jax.baselines import gcrl
+from specrl_jax.baselines.gcrl import primitives as prim
 from specrl_jax.baselines.ppo.networks import Categorical, PolicyOutput
 from specrl_jax.envs.spaces import Box
 

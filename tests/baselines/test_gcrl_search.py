@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from specrl_jax import automata
-from specrl_jax.baselines import gcrl_search as search
+from specrl_jax.baselines.gcrl import search
 
 PROPS = ("a", "b", "c")
 FORMULAS = ["!a U (b & F c)", "F (a & F (b & F c))",

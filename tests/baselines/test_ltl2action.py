@@ -32,7 +32,7 @@ def _graph(text, pad=12):
 
 
 def _encoder():
-    encoder = ltl2action.RGCNEncoder(num_features(len(PROPS)))
+    encoder = ltl2action.networks.RGCNEncoder(num_features(len(PROPS)))
     tokens, parent, edge = _graph("!a U (b & F c)")
     params = encoder.init(jax.random.key(0), tokens, parent, edge)
     return encoder, params

@@ -223,7 +223,7 @@ def test_reach_stay_formulas_are_left_out_of_the_stage_success():
 def test_make_method_samplers_and_errors():
     world, params = make_letter_world(LetterConfig(grid_size=5, letters=("a", "b", "c"), counts=1))
     method = ltl2action.make_method(world, params, num_formulas=4)
-    assert method.follows_curriculum and ltl2action.SAMPLERS["letter"] == "curriculum"
+    assert method.follows_curriculum and ltl2action.check_sampler("letter", None) == "curriculum"
     assert int(method.init_task_params().stage) == 0
     by_stage = ltl2action.training_formulas(world.propositions, "letter", 4)
     assert [len(s) for s in by_stage] == [6, 4, 4, 4]  # all 3 x 2 one-step tasks, then draws

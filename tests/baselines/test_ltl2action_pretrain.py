@@ -12,7 +12,8 @@ import pytest
 
 import specrl_jax
 from specrl_jax.automata import zero_or_one
-from specrl_jax.baselines import ltl2action, ltl2action_pretrain
+from specrl_jax.baselines import ltl2action
+from specrl_jax.baselines.ltl2action import pretrain as ltl2action_pretrain
 from specrl_jax.baselines.ppo import make_train
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.tasks.progression import num_features
@@ -29,7 +30,7 @@ def _same(x, y) -> bool:
 
 
 def test_bootcamp_learns_and_its_encoder_starts_the_downstream_network(tmp_path):
-    bootcamp = ltl2action_pretrain.make_bootcamp(zero_or_one(3), PROPS, FORMULAS)
+    bootcamp = ltl2action.make_bootcamp(zero_or_one(3), PROPS, FORMULAS)
     assert bootcamp.network.num_actions == 3  # the letters, never the empty assignment
     updates = 40
     cfg = ltl2action_pretrain.bootcamp_config(num_envs=16, num_steps=32, num_minibatches=2,
@@ -107,7 +108,7 @@ def test_committed_encoders_fit_the_networks_of_their_worlds(env_id):
     num_props = len(world.propositions)
     encoder = ltl2action_pretrain.load_encoder(stem.with_suffix(".msgpack"), num_props)
     graph = jnp.zeros((1, 4), jnp.int32)
-    fresh = jax.eval_shape(ltl2action.RGCNEncoder(num_features(num_props)).init,
+    fresh = jax.eval_shape(ltl2action.networks.RGCNEncoder(num_features(num_props)).init,
                            jax.random.key(0), graph, graph - 1, graph)
     assert jax.tree.map(np.shape, fresh) == jax.tree.map(np.shape, encoder)
     assert all(np.isfinite(leaf).all() for leaf in jax.tree.leaves(encoder))

@@ -8,7 +8,7 @@ import numpy as np
 
 from specrl_jax import automata
 from specrl_jax.automata import rad_sampler as rad
-from specrl_jax.baselines import rad_encoder as enc
+from specrl_jax.baselines.rad import encoder as enc
 
 ALPHABET = automata.all_subsets(2)  # symbols {}, a, b, ab
 # a leads on, b fails; then b fails and ab accepts

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from specrl_jax.automata import zero_or_one
-from specrl_jax.baselines import rad_pretrain
+from specrl_jax.baselines.rad import pretrain as rad_pretrain
 from specrl_jax.baselines.ppo import make_train
 
 

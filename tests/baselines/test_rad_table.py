@@ -12,8 +12,9 @@ import pytest
 
 from specrl_jax import automata
 from specrl_jax.automata import rad_sampler
-from specrl_jax.baselines import rad, rad_table
-from specrl_jax.baselines.rad_encoder import RADEncoder, build_graphs, graph_of
+from specrl_jax.baselines import rad
+from specrl_jax.baselines.rad import table as rad_table
+from specrl_jax.baselines.rad.encoder import RADEncoder, build_graphs, graph_of
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 
 TOLERANCE = 1e-5

@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 
 import specrl_jax
-from specrl_jax import automata
+from specrl_jax import automata, families
 from specrl_jax.baselines import deepltl, experiment, gcrl, genz, ltl2action, rad
 from specrl_jax.baselines.ppo import make_train
+from specrl_jax.baselines.spec import get_method
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.eval.evaluate import run_episode
 from specrl_jax.tasks import TaskEnv, as_stateful
 
-SINGLE_AGENT = [e for e in specrl_jax.list_envs()
-                if any(e.startswith(p) for p in experiment.FAMILIES) and "MA" not in e.split("-")[0]]
+SINGLE_AGENT = [e for e in specrl_jax.list_envs() if families.family_of_id(e).trainable]
 
 
 def test_every_single_agent_id_builds_a_training_env_for_each_method():
@@ -113,6 +113,6 @@ def test_training_and_evaluation_agree_on_an_episode():
 
 def test_clear_errors_for_unknown_methods_and_envs():
     with pytest.raises(ValueError, match="unknown method 'ppo'; accepted: genz, deepltl"):
-        experiment.method_module("ppo")
+        get_method("ppo")
     with pytest.raises(ValueError, match="cannot train on env 'Nope-v0'; single-agent IDs: Ant"):
         experiment.family("Nope-v0")

@@ -10,7 +10,7 @@ trainer never changes per method. `make_train(config, method)` returns a `Traine
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Protocol
+from typing import Any
 
 import flax.linen as nn
 import jax
@@ -19,6 +19,7 @@ import optax
 from flax import struct
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from specrl_jax import families
 from specrl_jax.baselines.ppo import losses, rollout
 
 
@@ -77,35 +78,35 @@ class PPOConfig:
         return losses.LossConfig(**{f: getattr(self, f) for f in fields})
 
 
-#: the reference shapes and discounts shared by the baselines, per world family
-WORLD_SETTINGS = {
-    "letter": {"num_envs": 16, "num_steps": 128, "num_minibatches": 8, "gamma": 0.94,
-               "ent_coef": 0.01},
-    "zone": {"num_envs": 16, "num_steps": 4096, "num_minibatches": 32, "gamma": 0.998,
-             "ent_coef": 0.003},
-    "arm": {"num_envs": 16, "num_steps": 1024, "num_minibatches": 8, "gamma": 0.99,
-            "ent_coef": 0.003},
-}
-
-
 def world_config(world: str, method: dict[str, Any], **overrides: Any) -> PPOConfig:
-    """`WORLD_SETTINGS[world]`, then a method's own settings, then `overrides`."""
-    if world not in WORLD_SETTINGS:
-        raise ValueError(f"unknown world family {world!r}; accepted: {sorted(WORLD_SETTINGS)}")
-    return PPOConfig(**{**WORLD_SETTINGS[world], **method, **overrides})
+    """The world family's reference settings (`families.get(world).ppo`), then a method's own
+    settings, then `overrides`."""
+    return PPOConfig(**{**families.get(world).ppo, **method, **overrides})
 
 
-class Method(Protocol):
-    """What a baseline plugs into the trainer. A method may also define `init_params(key, obs)`:
-    the network's initial parameters where they are not `network.init`'s (a pretrained part)."""
+class Method:
+    """What a baseline plugs into the trainer: its training env and network (attributes `env:
+    rollout.TrainEnv`, `network: nn.Module`), and the hooks below; subclasses override those that
+    differ from the defaults."""
 
     env: rollout.TrainEnv
     network: nn.Module
 
-    def init_task_params(self) -> Any: ...
+    def init_params(self, key: jax.Array, obs: Any) -> Any:
+        """The network's initial parameters (a method with a pretrained part overrides this)."""
+        return self.network.init(key, obs)
+
+    def init_task_params(self) -> Any:
+        """The task distribution's initial state (e.g. a curriculum's), or None."""
+        return None
 
     def update_task_params(self, task_params: Any, stats: dict[str, jax.Array]) -> Any:
         """The next task distribution from the rollout's per-step stats `[T, B]`."""
+        return task_params
+
+    def task_metrics(self, task_params: Any) -> dict[str, jax.Array]:
+        """Scalars of the task distribution logged with each update (e.g. the curriculum stage)."""
+        return {}
 
 
 @struct.dataclass
@@ -150,8 +151,7 @@ class Trainer:
         task_params = self.method.init_task_params()
         obs, env_state = rollout.reset_batch(self.method.env, key_env, self.config.num_envs, task_params)
         env_state, obs = self.constrain((env_state, obs))
-        init_params = getattr(self.method, "init_params", self.method.network.init)
-        params = init_params(key_params, jax.tree.map(lambda x: x[:1], obs))
+        params = self.method.init_params(key_params, jax.tree.map(lambda x: x[:1], obs))
         opt_state = self.optimizer.init(params)
         return RunnerState(params, opt_state, env_state, obs, task_params, key_run, jnp.zeros((), jnp.int32))
 
@@ -188,9 +188,8 @@ class Trainer:
         task_params = self.method.update_task_params(runner.task_params, traj.stats)
         stats = {k: jnp.sum(v) for k, v in traj.stats.items() if not k.startswith("_")}
         runner = RunnerState(params, opt_state, env_state, obs, task_params, key, runner.update + 1)
-        metrics = {**stats, **loss_metrics, "epochs": epochs, "reward": jnp.mean(traj.reward)}
-        if hasattr(self.method, "task_metrics"):  # optional: e.g. the curriculum stage
-            metrics.update(self.method.task_metrics(task_params))
+        metrics = {**stats, **loss_metrics, "epochs": epochs, "reward": jnp.mean(traj.reward),
+                   **self.method.task_metrics(task_params)}
         return runner, metrics
 
     def _epochs(self, params, opt_state, batch, key):

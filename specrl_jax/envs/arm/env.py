@@ -67,6 +67,7 @@ class ArmEnv(Env):
     """
 
     obs_kinds = {"ap": "range_bearing", "ego": "vector"}
+    family = "arm"
 
     def __init__(self, config: ArmConfig):
         if not isinstance(config, ArmConfig):

@@ -75,6 +75,7 @@ class MultiZoneEnv(Env):
     """
 
     obs_kinds = {"ap": "lidar", "ego": "vector", "others": "lidar"}
+    family = "multi_agent_zone"
 
     def __init__(self, config: MultiZoneConfig):
         if not isinstance(config, MultiZoneConfig):

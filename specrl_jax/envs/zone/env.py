@@ -78,6 +78,7 @@ class ZoneEnv(Env):
     """
 
     obs_kinds = {"ap": "lidar", "ego": "vector"}
+    family = "zone"
 
     def __init__(self, config: ZoneConfig):
         if not isinstance(config, ZoneConfig):

@@ -25,6 +25,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from specrl_jax import families
 from specrl_jax.automata import label_symbol, pairs
 from specrl_jax.baselines.encoders import ObsEncoder, check_kinds, obs_parts
 from specrl_jax.baselines.ppo.networks import (
@@ -34,8 +35,10 @@ from specrl_jax.baselines.ppo.networks import (
     PolicyOutput,
     critic,
 )
-from specrl_jax.baselines.ppo.train import PPOConfig, world_config
+from specrl_jax.baselines.ppo.train import Method, PPOConfig, world_config
 from specrl_jax.baselines.scoring import score_chosen
+from specrl_jax.baselines.spec import MethodSpec
+from specrl_jax.baselines.task_sources import curriculum_of
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.envs.wrappers import select_tree
 from specrl_jax.specs import CurriculumSampler, curriculum
@@ -118,7 +121,7 @@ def network_for(world: Any) -> GenZNetwork:
 
 
 @dataclasses.dataclass(frozen=True)
-class GenZ:
+class GenZ(Method):
     """The GenZ-LTL method for the shared trainer: the task loop with GenZ-LTL's continual
     subgoal source, its reduced observation and its reward / cost signals."""
 
@@ -132,27 +135,22 @@ class GenZ:
         return task_params
 
 
-def subgoal_masks(task: Any, alphabet: jax.Array) -> tuple[jax.Array, jax.Array]:
-    """The current pair of a `SequenceTask` as proposition masks `(reach, avoid)`, bool[P] each."""
-    current = task.current
-    reach = jnp.any(task.reach[current][:, None] & alphabet, axis=0)
-    avoid = jnp.any(task.avoid[current][:, None] & alphabet, axis=0)
-    return reach, avoid
-
-
-def make_method(world: Any, params: Any, family: str = "letter", cost_step: float = -1.0) -> GenZ:
+def make_method(world: Any, params: Any, family: str | None = None, cost_step: float = -1.0) -> GenZ:
     """GenZ-LTL on any single-agent world: subgoals reach 1 proposition and avoid up to 3 others
-    (Letter: 2,784 tasks; Zone: 32); `family` names the world's curriculum ("letter": genz/letter,
-    else genz/zone, the same subgoal distribution)."""
+    (Letter: 2,784 tasks; Zone: 32), drawn from the family record's curriculum (genz/letter,
+    genz/zone: the same subgoal distribution)."""
+    family = families.name_of(world, family)
     network = network_for(world)
     alphabet = jnp.asarray(world.alphabet, bool)
-    name = "genz/letter" if family == "letter" else "genz/zone"
+    name = curriculum_of("genz", family)
+    if name is None:
+        raise ValueError(f"GenZ-LTL has no curriculum for world family {family!r}")
     sampler = CurriculumSampler(curriculum(name), world.num_propositions)
     source = SequenceSource(sampler, alphabet, continual=True)
     kinds = dict(world.obs_kinds)
 
     def observe(obs, state):
-        reach, avoid = subgoal_masks(state.task, alphabet)
+        reach, avoid = state.task.current_masks(alphabet)
         return reduce_observation(obs, kinds, reach, avoid)
 
     def signals(info):
@@ -309,3 +307,10 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
         return action, carry._replace(steps=carry.steps + 1)
 
     return StatefulPolicy(init, apply, aborted=lambda carry: carry.stuck)
+
+
+SPEC = MethodSpec(
+    name="genz", title="GenZ-LTL", make_method=make_method, ppo_config=ppo_config,
+    make_policy=make_policy, summarise=summarise, options=("cost_step",),
+    deterministic=lambda family: True,  # the reference evaluates with mode actions everywhere
+)

@@ -31,10 +31,10 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
-from specrl_jax.baselines import gcrl_primitives as primitives_lib
-from specrl_jax.baselines import gcrl_search as search
+from specrl_jax import families
 from specrl_jax.baselines.encoders import ImageCNN, check_kinds, obs_parts
-from specrl_jax.baselines.genz import subgoal_masks
+from specrl_jax.baselines.gcrl import primitives as primitives_lib
+from specrl_jax.baselines.gcrl import search
 from specrl_jax.baselines.ppo.networks import (
     DiscreteHead,
     GaussianHead,
@@ -42,7 +42,8 @@ from specrl_jax.baselines.ppo.networks import (
     PolicyOutput,
 )
 from specrl_jax.baselines.ppo.rollout import reset_batch
-from specrl_jax.baselines.ppo.train import PPOConfig, world_config
+from specrl_jax.baselines.ppo.train import Method, PPOConfig, world_config
+from specrl_jax.baselines.spec import MethodSpec
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.specs import CurriculumSampler
 from specrl_jax.specs.curricula import Curriculum, GenZSubgoals, Stage
@@ -153,7 +154,7 @@ def uses_primitives(world: Any, family: str) -> bool:
 
 
 @dataclasses.dataclass(frozen=True)
-class GCRL:
+class GCRL(Method):
     """The GCRL-LTL method for the shared trainer: the task loop with one-goal tasks."""
 
     env: TaskTrainEnv
@@ -170,12 +171,13 @@ class GCRL:
         return task_params
 
 
-def make_method(world: Any, params: Any, family: str = "letter",
+def make_method(world: Any, params: Any, family: str | None = None,
                 trunk: tuple[int, ...] = (512, 1024, 256),
                 value_features: tuple[int, ...] = (1024,) * 4, primitives: Any = None) -> GCRL:
     """GCRL-LTL on any single-agent world: one-goal tasks over the world's propositions. Zone
     robots act through the 4 direction primitives `primitives` (untrained placeholders when
     None: `prepare_training` trains them)."""
+    family = families.name_of(world, family)
     hierarchical = uses_primitives(world, family)
     network = network_for(world, trunk, hierarchical)
     if hierarchical and primitives is None:
@@ -187,7 +189,7 @@ def make_method(world: Any, params: Any, family: str = "letter",
     kinds = dict(world.obs_kinds)
 
     def observe(obs, state):
-        reach, _ = subgoal_masks(state.task, alphabet)
+        reach, _ = state.task.current_masks(alphabet)
         goal = jnp.argmax(reach).astype(jnp.int32)
         return GoalObs(obs_parts(obs, kinds), goals[goal], goal)
 
@@ -565,3 +567,12 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
         return (action, carry.slot), carry
 
     return StatefulPolicy(init, apply)
+
+
+SPEC = MethodSpec(
+    name="gcrl", title="GCRL-LTL", make_method=make_method, ppo_config=ppo_config,
+    make_policy=make_policy, summarise=summarise,
+    options=("trunk", "value_features", "primitives"),
+    prepare_training=prepare_training, finish_training=finish_training,
+    param_shapes=param_shapes, coordinator_agent=coordinator_agent,
+)

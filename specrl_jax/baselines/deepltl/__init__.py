@@ -18,6 +18,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
+from specrl_jax import families
 from specrl_jax.automata import label_symbol, pairs
 from specrl_jax.baselines.encoders import ObsEncoder, check_kinds, obs_parts
 from specrl_jax.baselines.ppo.networks import (
@@ -27,8 +28,10 @@ from specrl_jax.baselines.ppo.networks import (
     PolicyOutput,
     critic,
 )
-from specrl_jax.baselines.ppo.train import PPOConfig, world_config
+from specrl_jax.baselines.ppo.train import Method, PPOConfig, world_config
 from specrl_jax.baselines.scoring import score_chosen
+from specrl_jax.baselines.spec import MethodSpec
+from specrl_jax.baselines.task_sources import curriculum_of
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.envs.wrappers import select_tree
 from specrl_jax.specs import CurriculumSampler, curriculum
@@ -140,7 +143,7 @@ def split_action(network: DeepLTLNetwork):
 
 
 @dataclasses.dataclass(frozen=True)
-class DeepLTL:
+class DeepLTL(Method):
     """The DeepLTL method for the shared trainer: the task loop with a curriculum sequence source."""
 
     env: TaskTrainEnv
@@ -159,11 +162,14 @@ class DeepLTL:
         )
 
 
-def make_method(world: Any, params: Any, family: str = "letter") -> DeepLTL:
+def make_method(world: Any, params: Any, family: str | None = None) -> DeepLTL:
     """DeepLTL on any single-agent world, with the curriculum of `family` (letter or zone)."""
+    family = families.name_of(world, family)
     network = network_for(world, family)
     alphabet = jnp.asarray(world.alphabet, bool)
-    name = "deepltl/letter" if family == "letter" else "deepltl/zone"
+    name = curriculum_of("deepltl", family)
+    if name is None:
+        raise ValueError(f"DeepLTL has no curriculum for world family {family!r}")
     source = SequenceSource(CurriculumSampler(curriculum(name), world.num_propositions), alphabet)
     kinds = dict(world.obs_kinds)
 
@@ -286,3 +292,9 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: dict[str, st
         return (action, jnp.where(take_epsilon, slot, -1)), carry
 
     return StatefulPolicy(init, apply)
+
+
+SPEC = MethodSpec(
+    name="deepltl", title="DeepLTL", make_method=make_method, ppo_config=ppo_config,
+    make_policy=make_policy, summarise=summarise,
+)

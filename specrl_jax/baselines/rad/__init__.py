@@ -1,7 +1,7 @@
 """RAD-Embeddings (Yalcinkaya et al., NeurIPS'24): policies conditioned on a pretrained, frozen
 embedding of the task's conjunction of DFAs.
 
-Training (`SAMPLERS`): LetterWorld and ZoneEnv train by default on a `CurriculumDFASource` over
+Training (the family record's task source): LetterWorld and ZoneEnv train by default on a `CurriculumDFASource` over
 the world's DeepLTL curriculum as DFAs ("curriculum": each stage's tasks as minimal DFAs, stages
 advancing on the agent's success, reach-stay tasks left out), the distribution with which the
 paper's PointLTL0 figure reproduces (docs/fidelity.md); "rad" is the original's: a
@@ -37,21 +37,24 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from specrl_jax import specs
+from specrl_jax import families, specs
 from specrl_jax.automata import rad_sampler
 from specrl_jax.automata.rad_sampler import DFABank
-from specrl_jax.baselines import rad_pretrain, rad_table
 from specrl_jax.baselines.encoders import check_kinds, obs_parts
-from specrl_jax.baselines.ltl2action import CURRICULA, embedding_actor_critic
+from specrl_jax.baselines.heads import embedding_actor_critic
 from specrl_jax.baselines.ppo.networks import PolicyOutput
-from specrl_jax.baselines.ppo.train import PPOConfig, world_config
-from specrl_jax.baselines.rad_encoder import (
+from specrl_jax.baselines.ppo.train import Method, PPOConfig, world_config
+from specrl_jax.baselines.rad import pretrain as rad_pretrain
+from specrl_jax.baselines.rad import table as rad_table
+from specrl_jax.baselines.rad.encoder import (
     GraphBank,
     RADEncoder,
     build_graphs,
     graph_of,
     packing_allowance,
 )
+from specrl_jax.baselines.spec import MethodSpec
+from specrl_jax.baselines.task_sources import curriculum_of, families_with_curriculum, task_source
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.specs import CurriculumSampler
 from specrl_jax.tasks import TaskEnv
@@ -60,13 +63,6 @@ from specrl_jax.tasks.dfa_source import CurriculumDFASource, DFASource, curricul
 DEFAULT_BANK_SIZE = 4096
 #: draws of each sampled curriculum stage (before reach-stay draws are left out)
 CURRICULUM_DRAWS = 1024
-#: training task distribution per world family: "rad" (the original's RAD sampler) or
-#: "curriculum" (the family's DeepLTL curriculum as DFAs, `ltl2action.CURRICULA`)
-SAMPLERS = {"letter": "curriculum", "zone": "curriculum", "arm": "rad"}
-#: the shipped encoder a world family starts from: the grippers-only arm's alphabet is ZoneEnv's
-#: (the same 4 colours, one or none at a time), so it reads the Zone encoder
-SHIPPED_ENCODERS = {"letter": "letter", "zone": "zone", "arm": "zone"}
-
 
 class RADObs(NamedTuple):
     """What the RAD policy reads (one env; leading batch axes allowed): the world observation as
@@ -147,7 +143,7 @@ def bank_embedder(encoder_params: Any, graphs: GraphBank, bank: DFABank, num_lay
 
 
 @dataclasses.dataclass(frozen=True)
-class RAD:
+class RAD(Method):
     """The RAD method for the shared trainer: the task loop over a DFA source."""
 
     env: TaskTrainEnv
@@ -182,21 +178,24 @@ def training_bank(alphabet: np.ndarray, bank_size: int = DEFAULT_BANK_SIZE, seed
 
 
 def check_sampler(family: str, sampler: str | None) -> str:
-    """`sampler` (default `SAMPLERS[family]`) after checking it is "rad", or "curriculum" for a
-    family with one.
+    """`sampler` (default: the family record's task source, "curriculum" where it is a
+    curriculum) after checking it is "rad", or "curriculum" for a family with one.
 
     Raises:
         ValueError: an unknown family or sampler, or "curriculum" for a family without one.
     """
-    if family not in SAMPLERS:
+    source = task_source("rad", family)
+    if source is None:
+        known = [f for f in families.list_families() if task_source("rad", f)]
         raise ValueError(f"RAD: no sampler for world family {family!r} (families: "
-                         f"{', '.join(SAMPLERS)})")
-    sampler = SAMPLERS[family] if sampler is None else sampler
+                         f"{', '.join(known)})")
+    if sampler is None:
+        sampler = "curriculum" if curriculum_of("rad", family) else source
     if sampler not in ("rad", "curriculum"):
         raise ValueError(f"unknown RAD sampler {sampler!r}; accepted: 'rad', 'curriculum'")
-    if sampler == "curriculum" and family not in CURRICULA:
+    if sampler == "curriculum" and curriculum_of("rad", family) is None:
         raise ValueError(f"the {family!r} family has no curriculum (families with one: "
-                         f"{', '.join(CURRICULA)})")
+                         f"{', '.join(families_with_curriculum('rad'))})")
     return sampler
 
 
@@ -210,7 +209,7 @@ def curriculum_bank(propositions: Sequence[str], alphabet: np.ndarray, family: s
     key = ("curriculum", family, tuple(propositions), alphabet.tobytes(), alphabet.shape,
            per_stage, seed)
     if key not in _BANKS:
-        sampler = CurriculumSampler(specs.curriculum(CURRICULA[family]), len(propositions))
+        sampler = CurriculumSampler(specs.curriculum(curriculum_of("rad", family)), len(propositions))
         tasks = curriculum_dfas(sampler, propositions, alphabet, per_stage, seed)
         _BANKS[key] = (sampler, tasks.stage_sizes, tasks.bank, build_graphs(tasks.bank))
     return _BANKS[key]
@@ -221,20 +220,23 @@ def curriculum_bank(propositions: Sequence[str], alphabet: np.ndarray, family: s
 _EMBEDDERS: dict[tuple, Callable[[jax.Array, jax.Array], jax.Array]] = {}
 
 
-def make_method(world: Any, params: Any, family: str = "letter", bank: DFABank | None = None,
+def make_method(world: Any, params: Any, family: str | None = None, bank: DFABank | None = None,
                 bank_size: int = DEFAULT_BANK_SIZE, seed: int = 0,
                 encoder: str | None = None, encoder_params: Any = None,
                 encoder_layers: int = 8, max_table_rows: int = rad_table.MAX_TABLE_ROWS,
                 sampler: str | None = None, per_stage: int = CURRICULUM_DRAWS) -> RAD:
     """RAD on any single-agent world: the training tasks are `bank` (drawn uniformly) if given,
-    else by `sampler` (default `SAMPLERS[family]`) a bank of `bank_size` RAD conjunctions ("rad")
+    else by `sampler` (default: the family's task source) a bank of `bank_size` RAD conjunctions ("rad")
     or `family`'s curriculum as DFAs, `per_stage` draws of a sampled stage ("curriculum"),
-    embedded by the frozen encoder `encoder` (default: `SHIPPED_ENCODERS[family]`; or
+    embedded by the frozen encoder `encoder` (default: the family's `formula_encoder`; or
     `encoder_params` of `encoder_layers` rounds). The embeddings of the bank's reachable states
     are encoded once into a table, or every step where it would exceed `max_table_rows` rows
     (`bank_embedder`)."""
+    family = families.name_of(world, family)
     alphabet = np.asarray(world.alphabet, bool)
-    encoder = SHIPPED_ENCODERS.get(family, family) if encoder is None else encoder
+    if encoder is None:  # the grippers-only arm's alphabet is ZoneEnv's: it reads the Zone encoder
+        encoder = (families.get(family).formula_encoder
+                   if family in families.list_families() else family)
     shared = bank is None and encoder_params is None
     sampler = check_sampler(family, sampler)
     cache_key = (alphabet.tobytes(), alphabet.shape, bank_size, seed, encoder, encoder_layers,
@@ -332,3 +334,12 @@ def make_policy(network: RADNetwork, alphabet: jax.Array, obs_kinds: Mapping[str
         return out.pi.mode() if deterministic else out.pi.sample(key)
 
     return policy
+
+
+SPEC = MethodSpec(
+    name="rad", title="RAD-Embeddings", make_method=make_method, ppo_config=ppo_config,
+    make_policy=make_policy, summarise=summarise,
+    options=("bank", "bank_size", "seed", "encoder", "encoder_params", "encoder_layers",
+             "max_table_rows", "sampler", "per_stage"),
+    usable_suites=usable_suites,
+)

@@ -25,7 +25,7 @@ from flax import struct
 
 from specrl_jax.baselines.ppo.networks import MLP, DiagGaussian, PolicyOutput, critic, dense
 from specrl_jax.baselines.ppo.rollout import StepResult
-from specrl_jax.baselines.ppo.train import PPOConfig, make_train
+from specrl_jax.baselines.ppo.train import Method, PPOConfig, make_train
 from specrl_jax.envs.spaces import Discrete
 from specrl_jax.envs.wrappers import Wrapper, reset_done
 
@@ -90,8 +90,8 @@ class DirectionEnv:
         across = jnp.abs(velocity @ jnp.stack([-d[1], d[0]]))
         reward = along - ORTHOGONAL_PENALTY * across
         done = terminated | truncated
-        obs, stepped, info = reset_done(done, lambda: self.world.reset(key_reset, self.params),
-                                        obs, stepped, info)
+        obs, stepped, info = reset_done(done, lambda k: self.world.reset(k, self.params),
+                                        key_reset, obs, stepped, info)
         f32 = lambda x: jnp.asarray(x, jnp.float32)
         result = StepResult(
             reward=f32(reward), cost=f32(0.0), terminated=terminated, truncated=truncated,
@@ -106,7 +106,7 @@ def direction_env(world: Any, params: Any) -> DirectionEnv:
 
 
 @dataclasses.dataclass(frozen=True)
-class PrimitiveMethod:
+class PrimitiveMethod(Method):
     """One direction primitive for the shared trainer (the direction is the runner's
     `task_params`, set per primitive by `train_primitives`)."""
 

@@ -17,7 +17,7 @@ The encoder's parameters are saved as `specrl_jax/baselines/data/rad_encoder_<fa
 
 from __future__ import annotations
 
-import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -25,13 +25,15 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
-from flax import serialization, struct
 
+from specrl_jax import families
 from specrl_jax.automata import rad_sampler
 from specrl_jax.automata.rad_sampler import DFABank
+from specrl_jax.baselines.params_io import DATA_DIR, load_params, save_params
 from specrl_jax.baselines.ppo.networks import Categorical, PolicyOutput, unit_columns
-from specrl_jax.baselines.ppo.train import PPOConfig
-from specrl_jax.baselines.rad_encoder import (
+from specrl_jax.baselines.ppo.train import Method
+from specrl_jax.baselines.pretraining import SymbolWorld, pretrain_config, run_pretraining
+from specrl_jax.baselines.rad.encoder import (
     NUM_FLAGS,
     GraphBank,
     RADEncoder,
@@ -41,66 +43,12 @@ from specrl_jax.baselines.rad_encoder import (
     packing_allowance,
 )
 from specrl_jax.baselines.train_env import TaskTrainEnv
-from specrl_jax.envs.spaces import Discrete
 from specrl_jax.tasks import TaskEnv
 from specrl_jax.tasks.dfa_source import DFASource
 
-DATA_DIR = Path(__file__).parent / "data"
-#: the symbol task's horizon per world family (the original's Simple-LTL envs)
-HORIZONS = {"letter": 75, "zone": 1000}
 #: graph nodes of a sampled conjunction at most (about the 97th percentile over 12 letters;
 #: larger draws are redrawn, docs/fidelity.md): the encoder's cost grows with the padded size
 MAX_GRAPH_NODES = 40
-
-
-@struct.dataclass
-class SymbolParams:
-    max_steps: int = 75
-
-
-@struct.dataclass
-class SymbolState:
-    time: jax.Array  # int32[]
-
-
-class SymbolWorld:
-    """A world without observation whose action is the alphabet row that holds this step.
-
-    Observation: `{}`. Action: int32[] in 0..A-1. Labels: `alphabet[action]`, reported with
-    `info["symbol"]`. Never terminates; truncated at `params.max_steps` by the task loop.
-    """
-
-    obs_kinds: dict[str, str] = {}
-
-    def __init__(self, alphabet: np.ndarray, propositions: tuple[str, ...], max_steps: int = 75):
-        self._alphabet = jnp.asarray(np.asarray(alphabet, bool))
-        self.propositions = tuple(propositions)
-        self._max_steps = int(max_steps)
-
-    @property
-    def alphabet(self) -> jax.Array:
-        return self._alphabet
-
-    @property
-    def num_propositions(self) -> int:
-        return len(self.propositions)
-
-    @property
-    def default_params(self) -> SymbolParams:
-        return SymbolParams(self._max_steps)
-
-    @property
-    def action_space(self) -> Discrete:
-        return Discrete(int(self._alphabet.shape[0]))
-
-    def reset(self, key: jax.Array, params: Any = None) -> tuple[dict, SymbolState]:
-        return {}, SymbolState(jnp.zeros((), jnp.int32))
-
-    def step(self, key: jax.Array, state: SymbolState, action: jax.Array, params: Any = None):
-        symbol = jnp.clip(jnp.asarray(action, jnp.int32), 0, self._alphabet.shape[0] - 1)
-        info = {"propositions": self._alphabet[symbol], "symbol": symbol}
-        no = jnp.zeros((), bool)
-        return {}, SymbolState(state.time + 1), jnp.zeros(()), no, no, info
 
 
 class DFAObs(NamedTuple):
@@ -147,7 +95,7 @@ class PretrainNetwork(nn.Module):
         return PolicyOutput(Categorical(logits), value, zeros, zeros)
 
 
-class RADPretrain:
+class RADPretrain(Method):
     """The symbol task as a method for the shared trainer."""
 
     def __init__(self, env: TaskTrainEnv, network: PretrainNetwork):
@@ -171,9 +119,8 @@ def make_pretrain(alphabet: np.ndarray, propositions: tuple[str, ...], family: s
                   max_size: int | None = MAX_GRAPH_NODES, **encoder_sizes: int) -> RADPretrain:
     """The symbol task over `alphabet` on a bank of `bank_size` RAD conjunctions (or `bank`) of
     graphs of at most `max_size` nodes; `encoder_sizes` (hidden, num_layers) for small tests."""
-    if family not in HORIZONS:
-        raise ValueError(f"unknown world family {family!r}; accepted: {sorted(HORIZONS)}")
-    world = SymbolWorld(alphabet, propositions, HORIZONS[family])
+    # the symbol task's horizon is the family's (the original's Simple-LTL envs: 75 / 1000)
+    world = SymbolWorld(alphabet, propositions, families.get(family).horizon)
     if bank is None:
         bank = rad_sampler.sample_bank(bank_size, alphabet, seed, max_size)
     banks = Banks(bank, build_graphs(bank))
@@ -186,15 +133,6 @@ def make_pretrain(alphabet: np.ndarray, propositions: tuple[str, ...], family: s
     return RADPretrain(TaskTrainEnv(task, world.default_params, signals), network)
 
 
-def pretrain_config(**overrides: Any) -> PPOConfig:
-    """The original's pretraining PPO (`--dumb-ac`): 16 x 512 steps, minibatch 1,024, 2 epochs,
-    lr 1e-3, gamma 0.9, GAE 0.5, clip 0.1, entropy 0.01, value 0.5, 10M steps."""
-    settings = {"num_envs": 16, "num_steps": 512, "num_minibatches": 8, "update_epochs": 2,
-                "lr": 1e-3, "gamma": 0.9, "gae_lambda": 0.5, "clip_eps": 0.1, "ent_coef": 0.01,
-                "vf_coef": 0.5, "total_timesteps": 10_000_000}
-    return PPOConfig(**{**settings, **overrides})
-
-
 def encoder_params(params: Any) -> Any:
     """The encoder's part of a pretraining network's parameters."""
     return {"params": params["params"]["encoder"]}
@@ -205,11 +143,21 @@ def encoder_path(family: str) -> Path:
 
 
 def save_encoder(path: str | Path, params: Any, meta: dict[str, Any]) -> None:
-    """Write encoder parameters (msgpack) and `meta` (JSON, same name with .json)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(serialization.to_bytes(jax.device_get(params)))
-    path.with_suffix(".json").write_text(json.dumps(meta, indent=1) + "\n")
+    """Write encoder parameters and how they were made (`meta`)."""
+    save_params(path, params, meta)
+
+
+def pretrain_encoder(alphabet: np.ndarray, propositions: tuple[str, ...], family: str,
+                     key: jax.Array, steps: int, bank_size: int = 8192, seed: int = 0,
+                     log: Callable[[str], None] = print, chunk_updates: int = 50,
+                     **ppo_overrides: Any) -> Any:
+    """Pretrain the encoder on the symbol task over `alphabet` (a bank of `bank_size` RAD
+    conjunctions) for about `steps` env steps of `pretrain_config(**ppo_overrides)`; returns
+    `encoder_params` of the result."""
+    method = make_pretrain(alphabet, propositions, family, bank_size, seed)
+    config = pretrain_config(total_timesteps=max(int(steps), 1), **ppo_overrides)
+    return encoder_params(run_pretraining(method, config, key, "RAD pretraining", log,
+                                          chunk_updates))
 
 
 def load_encoder(family_or_path: str | Path, num_symbols: int) -> Any:
@@ -219,12 +167,12 @@ def load_encoder(family_or_path: str | Path, num_symbols: int) -> Any:
     Raises:
         ValueError: no such file, or the file is for another alphabet size.
     """
-    path = (encoder_path(str(family_or_path)) if str(family_or_path) in HORIZONS
+    path = (encoder_path(str(family_or_path)) if str(family_or_path) in ("letter", "zone")
             else Path(family_or_path))
     if not path.exists():
         raise ValueError(f"no pretrained RAD encoder at {path}; make one with "
-                         "`python benchmarks/rad_pretrain.py` (see its docstring)")
-    stored = serialization.msgpack_restore(path.read_bytes())
+                         "`specrl-jax pretrain --method rad --family letter --out PATH`")
+    stored = load_params(path, what="RAD encoder parameters")
     try:
         width = np.shape(stored["params"]["embed"]["kernel"])[0]
     except (KeyError, TypeError):

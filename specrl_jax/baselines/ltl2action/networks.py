@@ -1,0 +1,135 @@
+"""LTL2Action's networks: the relational GCN over the progressed formula's syntax tree and the
+actor-critic that reads its embedding beside the observation."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from specrl_jax.baselines.encoders import check_kinds
+from specrl_jax.baselines.heads import dense as _dense
+from specrl_jax.baselines.heads import embedding_actor_critic
+from specrl_jax.baselines.ppo.networks import PolicyOutput
+from specrl_jax.tasks.progression import NUM_EDGE_TYPES, num_features
+
+#: the R-GCN's submodule name in the LTL2Action and pretraining networks (what transfers)
+ENCODER = "RGCNEncoder_0"  # flax's automatic name, kept so that saved parameters load
+
+
+def relation_kernel_init(key: jax.Array, shape: Sequence[int],
+                         dtype: jnp.dtype = jnp.float32) -> jax.Array:
+    """DGL 0.4.3 `RelGraphConv`'s basis weights `[R, in, out]`: `xavier_uniform_` with ReLU gain
+    under PyTorch's fans for a 3-D tensor (fan_in = in * out, fan_out = R * out), i.e.
+    U(-b, b) with b = sqrt(2) sqrt(6 / (in * out + R * out)); 0.0743 for [4, 64, 32]."""
+    num_rels, num_in, out = shape
+    bound = np.sqrt(2.0) * np.sqrt(6.0 / (num_in * out + num_rels * out))
+    return jax.random.uniform(key, shape, dtype, -bound, bound)
+
+
+class FormulaObs(NamedTuple):
+    """What the LTL2Action network reads (one env; leading batch axes allowed): the world
+    observation as encoder parts and the progressed formula's syntax tree (see
+    `tasks.progression.ProgressionBank`): `tokens` int16[N] (-1 padding), `parent` int16[N]
+    (-1: root or padding), `edge` int8[N]."""
+
+    parts: dict
+    tokens: jax.Array
+    parent: jax.Array
+    edge: jax.Array
+
+
+class RGCNEncoder(nn.Module):
+    """LTL2Action's `RGCN_8x32_ROOT_SHARED` with segment sums.
+
+    `h0 = W_in x` (x one-hot node tokens); `num_layers` times the one shared relational
+    convolution `h_i <- tanh(sum_r sum_{j in N_r(i)} W_r [h_j, h0_j] + b)` over the self edge
+    (type 0) and the child -> parent edges (types 1-3); the root's hidden, through a Dense layer.
+    Node order does not matter: only the parent links and edge types do. The relation weights
+    start as DGL 0.4.3's (`relation_kernel_init`), the Dense layers as the original's.
+    """
+
+    features: int
+    hidden: int = 32
+    num_layers: int = 8
+    out: int = 32
+
+    @nn.compact
+    def __call__(self, tokens: jax.Array, parent: jax.Array, edge: jax.Array) -> jax.Array:
+        batch, num_nodes = tokens.shape[:-1], tokens.shape[-1]
+        tokens = tokens.reshape(-1, num_nodes).astype(jnp.int32)
+        parent = parent.reshape(-1, num_nodes).astype(jnp.int32)
+        edge = edge.reshape(-1, num_nodes).astype(jnp.int32)
+        num_graphs = tokens.shape[0]
+        mask = tokens >= 0
+        h0 = _dense(self.hidden)(jax.nn.one_hot(tokens, self.features))  # [G, N, H]
+        weight = self.param("relation_kernel", relation_kernel_init,
+                            (NUM_EDGE_TYPES, 2 * self.hidden, self.hidden))
+        bias = self.param("relation_bias", nn.initializers.zeros_init(), (self.hidden,))
+        total = num_graphs * num_nodes
+        offsets = (jnp.arange(num_graphs) * num_nodes)[:, None]
+        receiver = jnp.where(mask & (parent >= 0), parent + offsets, total).reshape(-1)
+        edge_flat = edge.reshape(-1)
+        def convolve(_, h):
+            x = jnp.concatenate([h, h0], axis=-1).reshape(total, 2 * self.hidden)
+            by_type = jnp.einsum("nd,rdo->nro", x, weight)  # [G*N, R, H]
+            own = by_type[:, 0]
+            message = jnp.take_along_axis(by_type, edge_flat[:, None, None], axis=1)[:, 0]
+            incoming = jax.ops.segment_sum(message, receiver, num_segments=total)
+            h = jnp.tanh(own + incoming + bias).reshape(num_graphs, num_nodes, self.hidden)
+            return jnp.where(mask[..., None], h, 0.0)
+
+        # one shared convolution: a loop keeps the compiled program one layer long
+        h = jax.lax.fori_loop(0, self.num_layers, convolve, h0)
+        is_root = mask & (parent < 0)
+        root = jnp.sum(jnp.where(is_root[..., None], h, 0.0), axis=-2)
+        return _dense(self.out)(root).reshape(*batch, self.out)
+
+
+class LTL2ActionNetwork(nn.Module):
+    """Observation encoder (grid CNN, vector MLP [128, 64] ReLU, image CNN) and the R-GCN formula
+    embedding, concatenated; actor [64, 64, 64] ReLU then logits (or a Gaussian with Tanh mean
+    and state-dependent std); critic [64, 64] Tanh. `freeze_encoder`: no gradient reaches the
+    R-GCN (the original's `--freeze-ltl`)."""
+
+    num_actions: int  # discrete actions, or the action dimension when `continuous`
+    propositions: tuple[str, ...]
+    continuous: bool = False
+    freeze_encoder: bool = False
+
+    @nn.compact
+    def __call__(self, obs: FormulaObs) -> PolicyOutput:
+        formula = RGCNEncoder(num_features(len(self.propositions)), name=ENCODER)(
+            obs.tokens, obs.parent, obs.edge)
+        if self.freeze_encoder:
+            formula = jax.lax.stop_gradient(formula)
+        return embedding_actor_critic(obs.parts, formula, self.num_actions, self.continuous)
+
+
+def network_for(world: Any, freeze_encoder: bool = False) -> LTL2ActionNetwork:
+    """The LTL2Action network for a world's action space and propositions."""
+    check_kinds(world.obs_kinds)
+    space, props = world.action_space, tuple(world.propositions)
+    if hasattr(space, "n"):
+        return LTL2ActionNetwork(int(space.n), props, freeze_encoder=freeze_encoder)
+    return LTL2ActionNetwork(int(space.shape[0]), props, continuous=True,
+                             freeze_encoder=freeze_encoder)
+
+
+def with_encoder(params: Any, encoder: Any) -> Any:
+    """`params` of a network with an `ENCODER` submodule, that submodule's parameters replaced
+    by `encoder` (an R-GCN's `{"params": ...}`, e.g. `pretrain.encoder_params`).
+
+    Raises:
+        ValueError: `encoder` does not have the network's encoder's shapes.
+    """
+    own, given = params["params"][ENCODER], encoder["params"]
+    shapes = jax.tree.map(np.shape, own), jax.tree.map(np.shape, given)
+    if shapes[0] != shapes[1]:
+        raise ValueError(f"the pretrained encoder's parameters {shapes[1]} do not match the "
+                         f"network's R-GCN {shapes[0]} (another number of propositions?)")
+    return {**params, "params": {**params["params"], ENCODER: jax.tree.map(jnp.asarray, given)}}

@@ -1,0 +1,64 @@
+"""The one saved-parameter format: a pytree as flax msgpack, with an optional JSON file beside it
+(same name, `.json`) saying how it was made. Run checkpoints, trained parameters and the shipped
+pretrained encoders all use it."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import jax
+from flax import serialization
+
+#: the shipped artefacts of the baselines (pretrained formula encoders)
+DATA_DIR = Path(__file__).parent / "data"
+
+
+def save_params(path: str | os.PathLike, tree: Any, meta: dict[str, Any] | None = None) -> None:
+    """Write `tree` to `path` (through a temporary file, so a crash leaves the old file whole)
+    and `meta`, if given, to the JSON beside it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_bytes(serialization.to_bytes(jax.device_get(tree)))
+    os.replace(tmp, path)
+    if meta is not None:
+        path.with_suffix(".json").write_text(json.dumps(meta, indent=1, default=str) + "\n")
+
+
+def load_params(path: str | os.PathLike, template: Any = None, what: str = "parameters") -> Any:
+    """The tree stored at `path`, as nested dicts of arrays, or in the structure of `template`.
+
+    Raises:
+        ValueError: no such file, or it cannot be read (into `template`'s structure); the message
+            names `what` the file should hold.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ValueError(f"no {what} at {path}")
+    try:
+        stored = serialization.msgpack_restore(path.read_bytes())
+    except Exception as err:  # msgpack raises assorted types for a damaged file
+        raise ValueError(f"{path} does not hold readable {what} "
+                         f"({type(err).__name__}: {err})") from err
+    return stored if template is None else load_params_into(template, stored)
+
+
+def load_params_into(template: Any, stored: Any) -> Any:
+    """`stored` (as `load_params` returns it) in the structure of `template`.
+
+    Raises:
+        ValueError: it does not fit `template` (other shapes or keys).
+    """
+    try:
+        return serialization.from_state_dict(template, stored)
+    except Exception as err:  # flax raises assorted types for a tree of another structure
+        raise ValueError(f"stored tree does not fit ({type(err).__name__}: {err})") from err
+
+
+def read_meta(path: str | os.PathLike) -> dict[str, Any]:
+    """The JSON written beside `path` by `save_params` ({} without one)."""
+    meta = Path(path).with_suffix(".json")
+    return json.loads(meta.read_text()) if meta.exists() else {}

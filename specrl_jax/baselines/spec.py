@@ -1,0 +1,111 @@
+"""The declared interface of a method, and the registry of methods.
+
+A method is one package under `specrl_jax/baselines/` whose `SPEC` is a `MethodSpec`: what it
+provides to the training driver (`experiment.train`), to evaluation (`experiment.evaluate`) and to
+the command line. Adding a method means one package and one `register_method(SPEC)` (the five
+baselines are registered below).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from specrl_jax.baselines.ppo.train import Method, PPOConfig
+
+
+def _reference_modes(family: str) -> bool:
+    """Mode actions on every world but LetterWorld, where the reference samples them."""
+    return family != "letter"
+
+
+@dataclasses.dataclass(frozen=True)
+class MethodSpec:
+    """A method, as the benchmark uses it.
+
+    Attributes:
+        name: the CLI's name ("genz").
+        title: the paper's name ("GenZ-LTL").
+        make_method: `(world, params, family, **options) -> Method`, the trainer's method object.
+        ppo_config: `(family, **overrides) -> PPOConfig`, the method's training settings.
+        make_policy: `(network, alphabet, obs_kinds, deterministic=..., **policy_options)` ->
+            the test-time agent (a `tasks.StatefulPolicy`).
+        summarise: per-update derived scalars of a metrics row (e.g. success rate).
+        options: the keyword options `make_method` takes beyond world, params and family.
+        deterministic: `(family) -> bool`, the reference's test-time action mode.
+        prepare_training: `(method, key, config, log) -> method`, a phase before PPO.
+        finish_training: `(method, params, key, config, log) -> params`, a phase after PPO.
+        param_shapes: `(method, policy_shapes) -> shapes`, where the saved parameters hold more
+            than the PPO network's.
+        usable_suites: `(suites, log) -> suites`, the suites the method can be evaluated on.
+        policy_takes_suites: whether `make_policy` needs the evaluated suites' names.
+        coordinator_agent: `(network, obs_kinds, ...)`, the agent the multi-agent coordinator
+            drives, where the method has one.
+    """
+
+    name: str
+    title: str
+    make_method: Callable[..., Method]
+    ppo_config: Callable[..., PPOConfig]
+    make_policy: Callable[..., Any]
+    summarise: Callable[[dict[str, float]], dict[str, float]]
+    options: tuple[str, ...] = ()
+    deterministic: Callable[[str], bool] = _reference_modes
+    prepare_training: Callable[..., Method] | None = None
+    finish_training: Callable[..., Any] | None = None
+    param_shapes: Callable[..., Any] | None = None
+    usable_suites: Callable[[Sequence[str], Callable[[str], None]], list[str]] | None = None
+    policy_takes_suites: bool = False
+    coordinator_agent: Callable[..., Any] | None = None
+
+    def check_options(self, options: dict[str, Any] | None) -> None:
+        """A ValueError naming the options this method does not take, listing those it does."""
+        unknown = sorted(set(options or {}) - set(self.options))
+        if unknown:
+            raise ValueError(f"{self.title} has no option {', '.join(map(repr, unknown))}; "
+                             f"accepted: {', '.join(self.options)}")
+
+
+_METHODS: dict[str, MethodSpec] = {}
+
+
+def register_method(spec: MethodSpec) -> None:
+    """Make a method known to the training driver, evaluation and the command line."""
+    if spec.name in _METHODS:
+        raise ValueError(f"method {spec.name!r} is already registered")
+    _METHODS[spec.name] = spec
+
+
+def unregister_method(name: str) -> None:
+    _METHODS.pop(name, None)
+
+
+def list_methods() -> list[str]:
+    _register_baselines()
+    return list(_METHODS)
+
+
+def get_method(name: str) -> MethodSpec:
+    """The specification of a registered method, with a clear error for an unknown name."""
+    _register_baselines()
+    if name not in _METHODS:
+        close = difflib.get_close_matches(str(name), list(_METHODS), n=3)
+        hint = f" Did you mean {', '.join(map(repr, close))}?" if close else ""
+        raise ValueError(f"unknown method {name!r}; accepted: {', '.join(_METHODS)}.{hint}")
+    return _METHODS[name]
+
+
+_BASELINES = ("genz", "deepltl", "ltl2action", "gcrl", "rad")
+
+
+def _register_baselines() -> None:
+    """Register the five baselines on first use (importing them builds flax modules)."""
+    if all(name in _METHODS for name in _BASELINES):
+        return
+    import importlib
+
+    for name in _BASELINES:
+        if name not in _METHODS:
+            register_method(importlib.import_module(f"specrl_jax.baselines.{name}").SPEC)
