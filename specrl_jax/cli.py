@@ -341,5 +341,43 @@ def run_command(args: argparse.Namespace) -> int:
     return 0
 
 
+@command(
+    "reproduce",
+    "Reproduce the paper's experiment grid into the results store: train and evaluate each "
+    "selected cell, skipping done cells and resuming partial ones (one cell per GPU).",
+    arg("--cells", default=None,
+        help="fnmatch pattern(s) of cell names, comma-separated (default: every cell), e.g. "
+             "'LetterLTL0-v0/genz' or 'Panda*/*'"),
+    arg("--list", action="store_true", help="show the grid: each cell's state and estimated GPU time"),
+    arg("--store", default=None, help="results store directory (default: the package's)"),
+    arg("--gpus", type=positive_int, default=None,
+        help="cells run side by side (default: the visible GPUs; 1: one after the other)"),
+    arg("--seeds", type=positive_int, default=None, help="smoke runs: seeds per cell (default 5)"),
+    arg("--total-steps", type=positive_int, default=None, help="smoke runs: env steps per seed"),
+    arg("--episodes", type=positive_int, default=None, help="smoke runs: episodes per spec and seed"),
+    arg("--num-envs", type=positive_int, default=None, help="smoke runs: envs per seed"),
+)
+def reproduce_command(args: argparse.Namespace) -> int:
+    from specrl_jax.benchmark import reproduce
+
+    return reproduce.run_from_args(args)
+
+
+@command(
+    "report",
+    "Render the results page (docs/results.md) and its figures from the results store, the "
+    "paper's published numbers and the measurements file.",
+    arg("--store", default=None, help="results store directory (default: the package's)"),
+    arg("--out", default="docs/results.md", help="the page to write (default docs/results.md)"),
+    arg("--figures", default=None, help="figure directory (default: figures/ beside --out)"),
+)
+def report_command(args: argparse.Namespace) -> int:
+    from specrl_jax.benchmark import report
+
+    written = report.render(store=args.store, out=args.out, figures=args.figures)
+    print("wrote " + ", ".join(str(p) for p in written))
+    return 0
+
+
 if __name__ == "__main__":
     sys.exit(main())

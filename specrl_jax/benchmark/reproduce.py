@@ -1,0 +1,410 @@
+"""Reproduce the paper's experiment grid into the results store: `specrl-jax reproduce`.
+
+For each selected cell (`grid.select`): skip it when the store holds it complete; otherwise
+train its seeds side by side (`experiment.train` into `<store>/scratch/<cell>/run`, resumed
+from its checkpoint after an interruption), write seed 1's parameters and the training curve,
+then evaluate every suite not yet evaluated on all seeds (`cell.json` is written after each
+suite, so an interrupted evaluation resumes at the next suite). An evaluation-only cell (the
+multi-agent coordinator) runs the seed-1 parameters of its `params_from` cell on every seed.
+
+On a host with several GPUs the cells run side by side, one per GPU (a subprocess each with
+`CUDA_VISIBLE_DEVICES`); on one GPU or a CPU, one after the other in this process.
+
+    from specrl_jax.benchmark import reproduce
+    reproduce.reproduce("LetterLTL0-v0/genz")
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from specrl_jax.benchmark import grid
+from specrl_jax.benchmark.grid import Cell
+from specrl_jax.benchmark.store import Store, missing_work, suite_seeds
+
+Log = Callable[[str], None]
+
+
+# ---------------------------------------------------------------------------------------------
+# One cell
+
+
+def default_train(cell: Cell, run_dir: Path, log: Log) -> tuple[Any, dict[str, Any]]:
+    """Train `cell`'s seeds side by side with the family's shape on this device
+    (`experiment.default_overrides`) and the cell's PPO overrides."""
+    import jax
+
+    from specrl_jax.baselines import experiment
+
+    platform = jax.devices()[0].platform
+    overrides = experiment.default_overrides(platform, cell.total_steps,
+                                             experiment.family(cell.env_id))
+    overrides.update(dict(cell.ppo))
+    return experiment.train(cell.method, cell.env_id, run_dir, overrides, cell.seeds, log=log,
+                            env_options=dict(cell.env_options) or None,
+                            method_options=cell.options() or None)
+
+
+def default_load(cell: Cell, path: Path, num_seeds: int) -> Any:
+    from specrl_jax.baselines import experiment
+
+    return experiment.load_params(cell.method, cell.env_id, path, num_seeds,
+                                  env_options=dict(cell.env_options) or None,
+                                  method_options=cell.options() or None)
+
+
+def default_evaluate(cell: Cell, params: Any, suites: Sequence[str], log: Log) -> list:
+    """`SuiteResult`s of `suites` for seeds 1..cell.seeds (`params` with a seed axis)."""
+    from specrl_jax.baselines import experiment
+
+    if not cell.trains:
+        return evaluate_coordinator(cell, params, suites, log)
+    return experiment.evaluate(cell.method, cell.env_id, params, suites, cell.episodes, log=log,
+                               env_options=dict(cell.env_options) or None,
+                               method_options=cell.options() or None)
+
+
+def _save_seed1(params: Any, path: Path) -> None:
+    import jax
+    from flax import serialization
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    one = jax.tree.map(lambda x: x[0], jax.device_get(params))
+    path.write_bytes(serialization.to_bytes(one))
+
+
+def _versions() -> tuple[dict[str, str], str]:
+    from specrl_jax.eval.report import versions
+
+    v = versions()
+    return v, v.pop("device")
+
+
+def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
+             train: Callable | None = None, evaluate: Callable | None = None,
+             load: Callable | None = None) -> dict[str, Any]:
+    """Complete `cell` in `store`: train if its training is not complete, evaluate the suites
+    it lacks; returns its record. `train(cell, run_dir, log) -> (params, summary)`,
+    `evaluate(cell, params, suites, log) -> [SuiteResult]` and `load(cell, path, num_seeds)`
+    replace the defaults (tests)."""
+    store = store or Store()
+    train, evaluate, load = train or default_train, evaluate or default_evaluate, load or default_load
+    record = store.read(cell) or store.new_record(cell)
+    record["config"] = cell.config()
+    todo = missing_work(cell, record)
+    if not todo:
+        log(f"{cell.name}: done, skipped")
+        return record
+    run_dir = store.scratch_dir(cell) / "run"
+    trained = run_dir / "params.msgpack"
+    params = None
+    if cell.trains:
+        suites_todo = [s for s in todo if s != "train"]
+        if "train" in todo or not trained.exists() and suites_todo:
+            # (re)train: suites evaluated on other parameters (fewer seeds) are stale
+            log(f"{cell.name}: training {cell.seeds} x {cell.total_steps:,} steps in {run_dir}")
+            start = time.perf_counter()
+            params, summary = train(cell, run_dir, log)
+            record["training"] = _plain(summary)
+            record["training"]["complete"] = bool(summary.get("complete", True))
+            record["wall_s"] = {"train": training_wall(summary, time.perf_counter() - start)}
+            record["suites"] = {}
+            record["versions"], record["device"] = _versions()
+            record.pop("source", None)
+            record.pop("params_note", None)
+            _save_seed1(params, store.params_path(cell))
+            if (run_dir / "metrics.jsonl").exists():
+                shutil.copyfile(run_dir / "metrics.jsonl", store.curve_path(cell))
+            store.write(cell, record)
+            if not record["training"]["complete"]:
+                log(f"{cell.name}: training stopped before its last update; rerun to resume")
+                return record
+        elif suites_todo:
+            params = load(cell, trained, cell.seeds)
+    else:
+        source = grid.cell(cell.params_from) if cell.params_from in grid.BY_NAME else None
+        if source is None or not store.params_path(source).exists():
+            raise ValueError(f"{cell.name} runs the seed-1 parameters of {cell.params_from}, "
+                             f"which the store does not hold ({store.params_path(cell.params_from)})")
+        params = load(source, store.params_path(source), 1)
+        record["training"] = {"params_from": cell.params_from}
+    for suite in missing_work(cell, record):
+        if suite == "train":
+            continue
+        log(f"{cell.name}: evaluating {suite} ({cell.seeds} seeds x {cell.episodes} episodes)")
+        start = time.perf_counter()
+        results = evaluate(cell, params, [suite], log)
+        record["versions"], record["device"] = _versions()
+        store.write(cell, record)
+        record = store.add_suites(cell, results, time.perf_counter() - start)
+    record = store.read(cell)
+    log(f"{cell.name}: {record['state']}")
+    return record
+
+
+def training_wall(summary: dict[str, Any], fallback: float) -> float:
+    """Training seconds over every session of a resumed run (the summary's steps over its
+    rate, whose clock spans resumes), else `fallback`."""
+    steps, rate = summary.get("env_steps_per_seed"), summary.get("env_steps_per_s")
+    if steps and rate:
+        return steps * summary.get("num_seeds", 1) / rate
+    return fallback
+
+
+def _plain(summary: dict[str, Any]) -> dict[str, Any]:
+    import json
+
+    return json.loads(json.dumps(summary, default=str))
+
+
+# ---------------------------------------------------------------------------------------------
+# The multi-agent coordinator: single-agent policies of PointLTL0 on every agent
+
+
+def _genz_agent(network: Any, obs_kinds: dict[str, str]):
+    """GenZ-LTL on one agent: its reduced observation (reach / avoid LiDAR pooled) -> mode action."""
+    from specrl_jax.baselines import genz
+
+    kinds = dict(obs_kinds)
+
+    def act(params, obs, goal, key):
+        parts = genz.reduce_observation(obs, kinds, goal.reach, goal.avoid)
+        return network.apply(params, parts).pi.mode()
+
+    return act
+
+
+def _deepltl_agent(network: Any, obs_kinds: dict[str, str]):
+    """DeepLTL on one agent: its subgoal as a one-pair sequence over the single-agent alphabet
+    (the empty label avoidable) -> mode action, the epsilon output dropped."""
+    import jax.numpy as jnp
+
+    from specrl_jax.baselines import deepltl
+    from specrl_jax.baselines.encoders import obs_parts
+
+    kinds = dict(obs_kinds)
+    split = deepltl.split_action(network)
+
+    def act(params, obs, goal, key):
+        seq = deepltl.SequenceObs(
+            obs_parts(obs, kinds), goal.reach_symbols[None], goal.avoid_symbols[None],
+            jnp.zeros(1, bool), jnp.int32(0), jnp.int32(1), jnp.zeros((), bool))
+        return split(network.apply(params, seq).pi.mode())[0]
+
+    return act
+
+
+def evaluate_coordinator(cell: Cell, params: Any, suites: Sequence[str], log: Log) -> list:
+    """The coordinator cell's suites: the `params_from` cell's network (seed-1 `params`, seed
+    axis of 1) on every agent of `cell.env_id`, each evaluation seed running those parameters."""
+    import warnings
+
+    import jax
+    import numpy as np
+
+    from specrl_jax import specs
+    from specrl_jax.baselines import experiment, gcrl
+    from specrl_jax.envs.registry import make
+    from specrl_jax.eval.suites import evaluate_suites
+    from specrl_jax.tasks.coordinator import SystemWorld, check_spec_agents, make_coordinator
+
+    source = grid.cell(cell.params_from)
+    env, env_params = make(cell.env_id)
+    single, single_params = make(source.env_id)
+    if not np.array_equal(np.asarray(single.alphabet), np.asarray(env.world.alphabet)):
+        raise ValueError(f"{source.env_id}'s alphabet differs from {cell.env_id}'s agents'")
+    for name in suites:
+        for formula in specs.suite(name):
+            check_spec_agents(formula, env)
+    method_obj = experiment.make_method(source.method, single, single_params,
+                                        experiment.family(source.env_id), source.options() or None)
+    builders = {"genz": _genz_agent, "deepltl": _deepltl_agent, "gcrl": gcrl.coordinator_agent}
+    policy = make_coordinator(builders[source.method](method_obj.network, single.obs_kinds), env)
+    one = jax.device_put(jax.tree.map(lambda x: x[0], params))
+    with warnings.catch_warnings():  # three specs exceed the candidate caps (fidelity.md)
+        warnings.filterwarnings("ignore", message=".*candidate sequences dropped")
+        return evaluate_suites(policy, cell.env_id, SystemWorld(env), env_params, suites,
+                               cell.episodes, seeds=range(1, cell.seeds + 1), policy_params=one,
+                               label=f"{source.method} + coordinator", log=log)
+
+
+# ---------------------------------------------------------------------------------------------
+# A selection of cells
+
+
+def gpu_count() -> int:
+    """GPUs visible to this process, without initialising JAX (which would hold them all)."""
+    visible = os.environ.get("CUDA_VISIBLE_DEVICES")
+    if visible is not None:
+        return len([d for d in visible.split(",") if d.strip() and d.strip() != "-1"])
+    try:
+        out = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, timeout=30,
+                             check=False)
+    except (OSError, subprocess.SubprocessError):
+        return 0
+    return sum(line.startswith("GPU ") for line in out.stdout.splitlines())
+
+
+def shrink(cells: Sequence[Cell], **changes: Any) -> list[Cell]:
+    """The cells with `seeds`, `total_steps`, `episodes` or `ppo` replaced (None: kept), for
+    smoke runs into a scratch store."""
+    changes = {k: v for k, v in changes.items() if v is not None}
+    if "ppo" in changes:
+        changes["ppo"] = tuple(sorted(changes["ppo"].items()))
+    return [dataclasses.replace(c, **changes) for c in cells]
+
+
+def format_list(cells: Sequence[Cell], store: Store | None = None) -> str:
+    """The grid with each cell's state and estimated GPU time."""
+    store = store or Store()
+    rows = [f"{'cell':44s} {'step':>4s} {'state':8s} {'seeds':>5s} {'est. GPU':>9s}"]
+    todo = 0.0
+    for c in cells:
+        state = store.state(c)
+        record = store.read(c)
+        seeds = suite_seeds(record) if record else 0
+        estimate = grid.estimate_seconds(c)
+        if state != "done":
+            todo += estimate
+        rows.append(f"{c.name:44s} {c.step:4d} {state:8s} {f'{seeds}/{c.seeds}':>5s} "
+                    f"{_duration(estimate):>9s}")
+    done = sum(store.state(c) == "done" for c in cells)
+    rows.append(f"{len(cells)} cells: {done} done, {len(cells) - done} to run, "
+                f"about {_duration(todo)} of GPU time (one GPU)")
+    return "\n".join(rows)
+
+
+def _duration(seconds: float) -> str:
+    minutes = seconds / 60
+    return f"{minutes:.0f} min" if minutes < 120 else f"{minutes / 60:.1f} h"
+
+
+def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None = None,
+              log: Log = print, gpus: int | None = None, cells: Sequence[Cell] | None = None,
+              worker_args: Sequence[str] = (), **run_options: Any) -> dict[str, str]:
+    """Run the selected cells (`grid.select(patterns)`, or `cells`); returns `{name: state}`."""
+    store = store or Store()
+    chosen = list(cells) if cells is not None else grid.select(patterns)
+    todo = [c for c in chosen if store.state(c) != "done"]
+    for c in chosen:
+        if c not in todo:
+            log(f"{c.name}: done, skipped")
+    if not todo:
+        return {c.name: "done" for c in chosen}
+    gpus = gpu_count() if gpus is None else gpus
+    total = sum(grid.estimate_seconds(c) for c in todo)
+    log(f"{len(todo)} cells to run, about {_duration(total)} of GPU time"
+        + (f" on {gpus} GPUs side by side" if gpus > 1 else ""))
+    if gpus > 1 and len(todo) > 1:
+        _run_side_by_side(todo, store, gpus, log, worker_args)
+    else:
+        spent, estimated = 0.0, 0.0
+        for i, c in enumerate(todo):
+            start = time.perf_counter()
+            run_cell(c, store, log=lambda line, c=c: log(f"[{c.name}] {line}"), **run_options)
+            spent += time.perf_counter() - start
+            estimated += grid.estimate_seconds(c)
+            left = sum(grid.estimate_seconds(x) for x in todo[i + 1:]) * spent / max(estimated, 1e-9)
+            log(f"{i + 1}/{len(todo)} cells finished in {_duration(spent)}; ETA {_duration(left)}")
+    return {c.name: store.state(c) for c in chosen}
+
+
+def _run_side_by_side(cells: Sequence[Cell], store: Store, gpus: int, log: Log,
+                      worker_args: Sequence[str]) -> None:
+    """One subprocess per cell, at most one per GPU at a time; their output is prefixed with
+    the cell's name."""
+    import threading
+
+    queue = list(cells)
+    running: dict[int, tuple[subprocess.Popen, Cell, float]] = {}
+    estimated = {c.name: grid.estimate_seconds(c) for c in cells}
+    finished, spent, done_estimate = 0, 0.0, 0.0
+    start_all = time.perf_counter()
+
+    def pump(proc: subprocess.Popen, name: str) -> None:
+        for line in proc.stdout:
+            log(f"[{name}] {line.rstrip()}")
+
+    while queue or running:
+        for gpu in range(gpus):
+            if gpu not in running and queue:
+                c = queue.pop(0)
+                env = dict(os.environ, CUDA_VISIBLE_DEVICES=str(gpu))
+                cmd = [sys.executable, "-m", "specrl_jax.benchmark.reproduce", "--cells", c.name,
+                       "--store", str(store.root), "--gpus", "1", *worker_args]
+                proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE,
+                                        stderr=subprocess.STDOUT, text=True)
+                threading.Thread(target=pump, args=(proc, c.name), daemon=True).start()
+                running[gpu] = (proc, c, time.perf_counter())
+                log(f"{c.name}: started on GPU {gpu}")
+        time.sleep(2.0)
+        for gpu, (proc, c, began) in list(running.items()):
+            if proc.poll() is None:
+                continue
+            del running[gpu]
+            finished += 1
+            spent += time.perf_counter() - began
+            done_estimate += estimated[c.name]
+            left = sum(estimated[x.name] for x in queue) + sum(
+                estimated[r[1].name] for r in running.values())
+            eta = left * spent / max(done_estimate, 1e-9) / gpus
+            log(f"{c.name}: exit {proc.returncode}, {store.state(c)}; {finished}/{len(cells)} "
+                f"cells after {_duration(time.perf_counter() - start_all)}; ETA {_duration(eta)}")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """`specrl-jax reproduce` (also `python -m specrl_jax.benchmark.reproduce`)."""
+    parser = argparse.ArgumentParser(prog="specrl-jax reproduce", description=__doc__.split("\n")[0])
+    add_arguments(parser)
+    return run_from_args(parser.parse_args(argv))
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--cells", default=None,
+                        help="fnmatch pattern(s) of cell names, comma-separated (default: all), "
+                             "e.g. 'LetterLTL0-v0/genz' or 'Panda*/*'")
+    parser.add_argument("--list", action="store_true", help="show the grid, states and estimates")
+    parser.add_argument("--store", default=None, help="results store directory (default: the package's)")
+    parser.add_argument("--gpus", type=int, default=None,
+                        help="cells side by side (default: the GPUs visible; 1: one after the other)")
+    parser.add_argument("--seeds", type=int, default=None, help="smoke runs: seeds per cell")
+    parser.add_argument("--total-steps", type=int, default=None, help="smoke runs: env steps per seed")
+    parser.add_argument("--episodes", type=int, default=None, help="smoke runs: episodes per spec and seed")
+    parser.add_argument("--num-envs", type=int, default=None, help="smoke runs: envs per seed")
+
+
+def run_from_args(args: argparse.Namespace) -> int:
+    store = Store(args.store)
+    ppo = {"num_envs": args.num_envs} if args.num_envs else None
+    cells = shrink(grid.select(args.cells), seeds=args.seeds, total_steps=args.total_steps,
+                   episodes=args.episodes, ppo=ppo)
+    if args.list:
+        print(format_list(cells, store))
+        return 0
+    from specrl_jax import cache
+
+    cache.enable_jax_cache()
+    worker = []
+    for flag, value in (("--seeds", args.seeds), ("--total-steps", args.total_steps),
+                        ("--episodes", args.episodes), ("--num-envs", args.num_envs)):
+        if value is not None:
+            worker += [flag, str(value)]
+    states = reproduce(cells=cells, store=store, gpus=args.gpus, worker_args=worker,
+                       log=lambda line: print(line, flush=True))
+    incomplete = [n for n, s in states.items() if s != "done"]
+    print(f"{len(states) - len(incomplete)}/{len(states)} cells done"
+          + (f"; not done: {', '.join(incomplete)}" if incomplete else ""))
+    return 0 if not incomplete else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

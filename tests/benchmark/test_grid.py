@@ -1,0 +1,74 @@
+"""The experiment grid: every paper suite of every world in a cell, no duplicates, selection,
+estimates; the paper's numbers as data."""
+
+import pytest
+
+from specrl_jax import specs
+from specrl_jax.benchmark import grid, paper
+
+PAPER_PREFIXES = ("letter/", "zone/", "arm_grippers/", "arm_grippers_arm/", "multi_agent_zone/")
+WORLDS = {  # the paper's world -> the env IDs whose cells carry its suites
+    "letter/": ("LetterLTL0-v0", "LetterLTL0-v0.partial"),
+    "zone/": ("PointLTL0-v0", "PointLTL1-v0", "PointLTL2-v0", "CarLTL0-v0", "AntLTL0-v0",
+              "PointLTL0Vision-v0", "CarLTL0Vision-v0", "AntLTL0Vision-v0"),
+    "arm_grippers/": ("PandaLTLReach0Joints-v0",),
+    "arm_grippers_arm/": ("PandaLTLReach1Joints-v0",),
+    "multi_agent_zone/": ("PointLTL0MA2-v0",),
+}
+
+
+def test_every_paper_suite_of_every_world_is_in_a_cell_of_each_method():
+    paper_suites = [s for s in specs.list_suites() if s.startswith(PAPER_PREFIXES)
+                    and s.split("/")[1] in ("finite", "infinite") and s.count("/") == 2]
+    assert len(paper_suites) == 22  # 4 letter, 5 zone, 5 + 2 arm, 6 multi-agent
+    for prefix, envs in WORLDS.items():
+        suites = [s for s in paper_suites if s.startswith(prefix)]
+        for env_id in envs:
+            cells = [c for c in grid.GRID if c.env_id == env_id]
+            methods = grid.COORDINATOR_METHODS if prefix == "multi_agent_zone/" else grid.METHODS
+            assert {c.method for c in cells} == set(methods), env_id
+            for suite in suites:
+                finite = "/finite/" in suite
+                carriers = {c.method for c in cells if suite in c.suites}
+                expected = set(methods) if finite else set(methods) - {"rad", "ltl2action"}
+                assert expected <= carriers, (env_id, suite)
+    assert all(set(c.suites) <= set(paper_suites) for c in grid.GRID)
+
+
+def test_no_duplicate_cells_and_names_map_to_files_and_back():
+    names = [c.name for c in grid.GRID]
+    assert len(names) == len(set(names))
+    for c in grid.GRID:
+        assert grid.cell_name(grid.file_name(c.name)) == c.name
+        assert "/" not in grid.file_name(c.name)
+    assert grid.cell("LetterLTL0-v0/ltl2action+bootcamp").options()["encoder"].endswith(
+        "baselines/data/ltl2action_encoder_letter.msgpack")
+    assert [c.step for c in grid.GRID] == sorted(c.step for c in grid.GRID)  # the issue's order
+
+
+def test_selection_by_pattern_and_estimates():
+    assert [c.name for c in grid.select("LetterLTL0-v0/genz")] == ["LetterLTL0-v0/genz"]
+    arm = grid.select("Panda*/*")
+    assert len(arm) == 10 and all(c.env_id.startswith("Panda") for c in arm)
+    assert len(grid.select("LetterLTL0-v0/*,PointLTL0-v0/genz")) == 7
+    with pytest.raises(ValueError, match="matches no cell"):
+        grid.select("NoSuchWorld/*")
+    with pytest.raises(ValueError, match="no cell"):
+        grid.cell("LetterLTL0-v0/nope")
+    for c in grid.GRID:
+        assert 0 < grid.estimate_seconds(c) < 3 * 24 * 3600, c.name
+    # a measured cell: 5 x 15M over its measured rate, plus setup and evaluation
+    c = grid.cell("PointLTL0-v0/genz")
+    assert grid.estimate_seconds(c) == pytest.approx(75e6 / 508_832 + grid.SETUP_S + 42.0)
+
+
+def test_paper_numbers_are_data_with_sources():
+    numbers = paper.load()
+    assert all(n.source for n in numbers)
+    assert paper.lookup("LetterLTL0-v0", "letter/finite/ind", "genz", "eta_s").text() == "0.98 ± 0.03"
+    assert paper.lookup("PointLTL0-v0", "zone/finite/ind", "ltl2action+bootcamp", "eta_s").mean == 0.58
+    assert paper.lookup("PandaLTLReach0Joints-v0", "arm_grippers/finite/ind", "gcrl", "eta_v").mean == 0.10
+    assert paper.lookup("CarLTL0-v0", "zone/finite/ind", "genz", "eta_s") is None
+    names = {c.name for c in grid.GRID}
+    for n in numbers:  # every number sits beside a cell of the grid
+        assert f"{n.env}/{n.method}" in names and n.suite in grid.cell(f"{n.env}/{n.method}").suites

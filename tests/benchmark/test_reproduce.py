@@ -1,0 +1,124 @@
+"""`reproduce` on a scratch store with an injected training and evaluation (no JAX work): skip
+done cells, resume interrupted evaluation suite by suite, retrain cells whose seeds are
+incomplete; the committed store's states; `--list`."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from specrl_jax import cli
+from specrl_jax.benchmark import grid, reproduce
+from specrl_jax.benchmark.store import Store, missing_work
+from specrl_jax.eval.evaluate import EvalResult
+from specrl_jax.eval.metrics import EpisodeTable
+from specrl_jax.eval.report import SuiteResult
+
+CELL = dataclasses.replace(grid.cell("LetterLTL0-v0/genz"), seeds=2, total_steps=2048, episodes=3)
+
+
+def fake_result(cell, suite, success=0.75):
+    seeds, specs, episodes = cell.seeds, 2, cell.episodes
+    rng = np.random.default_rng(len(suite))
+    ok = rng.random((seeds, specs, episodes)) < success
+    table = EpisodeTable(ok, ~ok & (rng.random(ok.shape) < 0.5), np.full(ok.shape, 7),
+                         ok.astype(int), np.zeros(ok.shape, bool))
+    finite = "/finite/" in suite
+    result = EvalResult(cell.env_id, ("F a", "F b"), np.array([finite, finite]),
+                        tuple(range(1, seeds + 1)), episodes, 75 if finite else 750, table)
+    return SuiteResult(cell.env_id, suite, "GenZ-LTL", result)
+
+
+class Fakes:
+    def __init__(self, fail_on=None):
+        self.trained, self.evaluated, self.fail_on = 0, [], fail_on
+
+    def train(self, cell, run_dir, log):
+        self.trained += 1
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "params.msgpack").write_bytes(b"")
+        (run_dir / "metrics.jsonl").write_text(json.dumps({"update": 1, "success_rate": 0.5}) + "\n")
+        params = {"w": np.zeros((cell.seeds, 3), np.float32)}
+        return params, {"complete": True, "env_steps_per_seed": cell.total_steps,
+                        "num_seeds": cell.seeds, "env_steps_per_s": 1000.0}
+
+    def evaluate(self, cell, params, suites, log):
+        (suite,) = suites
+        if suite == self.fail_on:
+            raise RuntimeError("interrupted")
+        self.evaluated.append(suite)
+        return [fake_result(cell, suite)]
+
+    def load(self, cell, path, num_seeds):
+        return {"w": np.zeros((num_seeds, 3), np.float32)}
+
+    def run(self, store):
+        return reproduce.run_cell(CELL, store, log=lambda line: None, train=self.train,
+                                  evaluate=self.evaluate, load=self.load)
+
+
+def test_a_cell_is_trained_evaluated_then_skipped(tmp_path):
+    store = Store(tmp_path)
+    assert store.state(CELL) == "missing"
+    fakes = Fakes()
+    record = fakes.run(store)
+    assert fakes.trained == 1 and fakes.evaluated == list(CELL.suites)
+    assert record["state"] == "done" and store.state(CELL) == "done"
+    assert sorted(record["suites"]) == sorted(CELL.suites)
+    entry = record["suites"]["letter/finite/ind"]
+    assert entry["seeds"] == [1, 2] and np.shape(entry["per_seed"]["eta_s"]) == (2, 2)
+    assert "episodes" not in entry  # per-episode tables are not kept
+    assert store.params_path(CELL).exists() and store.curve_path(CELL).exists()
+    assert record["wall_s"]["train"] == pytest.approx(2 * 2048 / 1000.0)
+    again = Fakes()
+    assert again.run(store)["state"] == "done"
+    assert again.trained == 0 and again.evaluated == []
+    states = reproduce.reproduce(cells=[CELL], store=store, gpus=1, log=lambda line: None,
+                                 train=again.train, evaluate=again.evaluate, load=again.load)
+    assert states == {CELL.name: "done"} and again.trained == 0
+
+
+def test_an_interrupted_evaluation_resumes_at_the_missing_suites(tmp_path):
+    store = Store(tmp_path)
+    first = Fakes(fail_on="letter/infinite/rsp")
+    with pytest.raises(RuntimeError, match="interrupted"):
+        first.run(store)
+    assert first.trained == 1 and first.evaluated == ["letter/finite/ind", "letter/finite/ood"]
+    assert store.state(CELL) == "partial"
+    assert missing_work(CELL, store.read(CELL)) == ["letter/infinite/rsp", "letter/infinite/rec"]
+    second = Fakes()
+    assert second.run(store)["state"] == "done"
+    assert second.trained == 0  # the run directory's parameters are reused
+    assert second.evaluated == ["letter/infinite/rsp", "letter/infinite/rec"]
+
+
+def test_a_cell_with_fewer_seeds_is_retrained_and_all_suites_reevaluated(tmp_path):
+    store = Store(tmp_path)
+    one_seed = dataclasses.replace(CELL, seeds=1)
+    fakes = Fakes()
+    reproduce.run_cell(one_seed, store, log=lambda line: None, train=fakes.train,
+                       evaluate=fakes.evaluate, load=fakes.load)
+    assert store.state(one_seed) == "done" and store.state(CELL) == "partial"
+    (store.scratch_dir(CELL) / "run" / "params.msgpack").unlink()  # that run is gone
+    fakes = Fakes()
+    assert fakes.run(store)["state"] == "done"
+    assert fakes.trained == 1 and fakes.evaluated == list(CELL.suites)
+
+
+def test_the_committed_store_and_the_list(capsys):
+    store = Store()
+    assert store.state(grid.cell("LetterLTL0-v0/genz")) == "done"
+    assert store.state(grid.cell("PointLTL0MA2-v0/deepltl+coordinator")) == "done"
+    assert store.state(grid.cell("CarLTL0-v0/genz")) == "partial"
+    assert store.state(grid.cell("PandaLTLReach0Joints-v0/genz")) == "missing"
+    for name in store.names():  # every stored cell is a grid cell, and done ones have all suites
+        c = grid.cell(name)
+        assert store.read(c)["cell"] == name
+    assert cli.main(["reproduce", "--list", "--cells", "LetterLTL0-v0/*,CarLTL0-v0/genz"]) == 0
+    out = capsys.readouterr().out
+    assert "LetterLTL0-v0/genz" in out and " done " in out and " partial " in out
+    assert "7 cells: 6 done, 1 to run" in out
+    assert reproduce.reproduce("LetterLTL0-v0/genz", store=store, log=print) == {
+        "LetterLTL0-v0/genz": "done"}  # done: nothing is trained
+    assert "done, skipped" in capsys.readouterr().out
