@@ -168,12 +168,14 @@ def _bars(ax: Any, env_id: str, suite: str, store: Store, title: str) -> None:
     # per method, the plain cell, else its one variant (the multi-agent coordinator cells)
     names = sorted((c for c in grid.GRID if c.env_id == env_id and c.variant != "bootcamp"),
                    key=lambda c: bool(c.variant))
-    x = np.arange(len(grid.METHODS))
+    methods = grid.COORDINATOR_METHODS if any(c.variant == "coordinator" for c in names) \
+        else grid.METHODS
+    x = np.arange(len(methods))
     ax.set_title(title, fontsize=9)
-    ax.set_xticks(x, [METHOD_NAMES[m].split("-")[0] for m in grid.METHODS], fontsize=7,
-                  rotation=30)
+    ax.set_xticks(x, [METHOD_NAMES[m].split("-")[0] for m in methods], fontsize=7, rotation=30)
+    ax.set_xlim(-0.6, len(methods) - 0.4)
     ax.set_ylim(0, 1.05)
-    for i, method in enumerate(grid.METHODS):
+    for i, method in enumerate(methods):
         c = next((c for c in names if c.method == method), None)
         record = store.read(c) if c is not None else None
         entry = (record or {}).get("suites", {}).get(suite)
@@ -202,7 +204,8 @@ def _legend(ax: Any) -> None:
 def world_figure(env_id: str, suites: Sequence[str], store: Store, path: Path) -> Path:
     plt = _pyplot()
     finite = [s for s in suites if "/finite/" in s]
-    fig, axes = plt.subplots(1, len(finite), figsize=(3.2 * len(finite), 2.8), squeeze=False)
+    fig, axes = plt.subplots(1, len(finite), figsize=(3.2 * len(finite), 2.8), squeeze=False,
+                             layout="constrained")
     for ax, suite in zip(axes[0], finite):
         _bars(ax, env_id, suite, store, f"{env_id} {suite.split('/')[-1].upper()}")
     axes[0][0].set_ylabel("rate (mean ± std over seeds)", fontsize=8)
@@ -213,7 +216,7 @@ def world_figure(env_id: str, suites: Sequence[str], store: Store, path: Path) -
 def dynamics_figure(store: Store, path: Path) -> Path:
     """The paper's figure (a): IND success / violation, Point / Car / Ant x LiDAR / image."""
     plt = _pyplot()
-    fig, axes = plt.subplots(2, 3, figsize=(10, 5.5), sharey=True)
+    fig, axes = plt.subplots(2, 3, figsize=(10, 5.5), sharey=True, layout="constrained")
     for j, (robot, lidar, vision) in enumerate(DYNAMICS):
         _bars(axes[0][j], lidar, "zone/finite/ind", store, f"{robot}, LiDAR")
         _bars(axes[1][j], vision, "zone/finite/ind", store, f"{robot}, image")
@@ -225,7 +228,8 @@ def dynamics_figure(store: Store, path: Path) -> Path:
 def settings_figure(store: Store, path: Path) -> Path:
     """The paper's figure (b): partial view, moving zones, the arm's two modes (IND)."""
     plt = _pyplot()
-    fig, axes = plt.subplots(1, len(SETTINGS), figsize=(3.0 * len(SETTINGS), 2.8), sharey=True)
+    fig, axes = plt.subplots(1, len(SETTINGS), figsize=(3.0 * len(SETTINGS), 2.8), sharey=True,
+                             layout="constrained")
     for ax, (title, env_id, suite) in zip(axes, SETTINGS):
         _bars(ax, env_id, suite, store, title)
     _legend(axes[0])
