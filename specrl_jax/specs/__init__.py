@@ -42,6 +42,7 @@ from specrl_jax.specs.suites import (
     register_suite,
     suite,
     suite_info,
+    suite_version,
     unregister_suite,
 )
 
@@ -78,5 +79,6 @@ __all__ = [
     "sequence_to_formula",
     "suite",
     "suite_info",
+    "suite_version",
     "unregister_suite",
 ]

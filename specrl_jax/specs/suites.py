@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import functools
+import hashlib
 from importlib import resources
 from typing import Literal
 
@@ -68,6 +69,13 @@ class SuiteInfo:
     @property
     def is_finite(self) -> bool:
         return self.horizon == "finite"
+
+    @property
+    def version(self) -> str:
+        """A short hash of the suite's formulas, propositions and horizon: any change to what
+        the suite asks gives it a new version (`suite_version`)."""
+        text = "\n".join((self.horizon, ",".join(self.propositions), *self.formulas))
+        return hashlib.sha256(text.encode()).hexdigest()[:10]
 
     @property
     def horizon_factor(self) -> int:
@@ -259,6 +267,11 @@ def suite_info(name: str) -> SuiteInfo:
     families = sorted({n.rsplit("/", 1)[0] + "/..." for n in known if "complexity/" in n})
     shown = [n for n in known if "complexity/" not in n] + families
     raise ValueError(f"unknown suite {name!r}.{hint} Known suites: {', '.join(shown)}")
+
+
+def suite_version(name: str) -> str:
+    """The named suite's version: a short hash of its formulas, propositions and horizon."""
+    return suite_info(name).version
 
 
 def suite(name: str) -> list[str]:
