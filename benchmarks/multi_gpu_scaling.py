@@ -14,7 +14,7 @@ compiling one; the wall-clock of seeds x 15M steps is compile + steps / that rat
 
 Evaluation: `experiment.evaluate` of every suite of the world (seeds x `--episodes`), episodes
 sharded over the first n devices, with the trained seed-1 parameters of
-`benchmarks/results/<world>_genz_params_seed1.msgpack` for every seed. Wall-clock of the compiled program, and with compile.
+the results store's `<world>/genz` cell (`store.params_path`) for every seed. Wall-clock of the compiled program, and with compile.
 
 Writes `<out>/scaling.json` after every measurement and `<out>/scaling.png` (efficiency).
 """
@@ -33,6 +33,7 @@ import jax.numpy as jnp
 
 from specrl_jax.baselines import experiment, runs
 from specrl_jax.baselines.ppo import env_mesh, make_train
+from specrl_jax.benchmark import store
 
 ROOT = Path(__file__).resolve().parents[1]
 PER_DEVICE_ENVS = {"zone": 512, "letter": 256}  # the reproduction's batch on one accelerator
@@ -72,8 +73,7 @@ def train_rate(env_id: str, num_envs: int, num_steps: int, devices: list, seeds:
 def eval_time(env_id: str, devices: list, seeds: int, episodes: int,
               suites: list[str]) -> dict[str, float]:
     """Seconds to evaluate `suites` (seeds x episodes) with the episodes over `devices`."""
-    name = f"{env_id.split('-')[0].lower()}_genz_params_seed1.msgpack"
-    one = experiment.load_params("genz", env_id, ROOT / "benchmarks/results" / name, 1)
+    one = experiment.load_params("genz", env_id, store.params_path(f"{env_id}/genz"), 1)
     params = jax.tree.map(lambda x: jnp.repeat(x, seeds, axis=0), one)
     lines: list[str] = []
     start = time.perf_counter()

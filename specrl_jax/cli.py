@@ -153,7 +153,9 @@ def make_policy(name: str, env: Any) -> Any:
 @command(
     "eval", "Evaluate a policy on specification suites and write JSON, Markdown and plots.",
     arg("--env", required=True, help="env ID, e.g. LetterLTL0-v0"),
-    arg("--policy", required=True, help=f"one of: {', '.join(POLICIES)}"),
+    arg("--policy", required=True,
+        help=f"one of: {', '.join(POLICIES)}; or trained parameters: a run directory of "
+             "`specrl-jax train`, or a results-store cell such as LetterLTL0-v0/genz"),
     arg("--suite", required=True, action="append", help="suite name (repeat for several)"),
     arg("--seeds", type=positive_int, default=5, help="number of seeds; seeds are 1..N (default 5)"),
     arg("--episodes", type=positive_int, default=100, help="episodes per seed and spec (default 100)"),
@@ -170,6 +172,8 @@ def eval_command(args: argparse.Namespace) -> int:
     from specrl_jax.eval.suites import evaluate_suites
 
     env, params = make(args.env)
+    if args.policy not in POLICIES:  # trained parameters: a run directory or a store cell
+        return _eval_trained(args)
     policy = make_policy(args.policy, env)
     seeds = list(range(1, args.seeds + 1))
     out = Path(args.out)
@@ -191,6 +195,42 @@ def eval_command(args: argparse.Namespace) -> int:
         written.append(_draw_trajectories(policy, env, params, args, out / "trajectories.png"))
     print(table)
     print("wrote " + ", ".join(str(p) for p in written))
+    return 0
+
+
+def _eval_trained(args: argparse.Namespace) -> int:
+    """`eval --policy RUN_DIR_OR_CELL`: the trained parameters on the given suites, with the
+    method, world options and method options the run was trained with; evaluation seed i runs
+    trained seed i (seed 1 for every evaluation seed when only one was kept)."""
+    import jax
+    import jax.numpy as jnp
+
+    from specrl_jax.baselines import experiment
+    from specrl_jax.benchmark.store import load_trained
+    from specrl_jax.eval import report
+
+    trained = load_trained(args.policy, env_id=args.env)
+    kept = jax.tree.leaves(trained.params)[0].shape[0]
+    if kept == 1:
+        params = jax.tree.map(lambda x: jnp.repeat(x, args.seeds, axis=0), trained.params)
+    elif args.seeds <= kept:
+        params = jax.tree.map(lambda x: x[:args.seeds], trained.params)
+    else:
+        raise ValueError(f"{trained.source} holds {kept} trained seeds; pass --seeds {kept} or fewer")
+    log = (lambda line: None) if args.no_progress else (lambda line: print(line, file=sys.stderr))
+    results = experiment.evaluate(trained.method, args.env, params, args.suite, args.episodes,
+                                  log=log, horizon=args.horizon,
+                                  env_options=trained.env_options or None,
+                                  method_options=trained.method_options or None)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    config = {key: value for key, value in vars(args).items() if key != "run"}
+    config.update(method=trained.method, trained=trained.source)
+    report.write_json(out / "eval.json", results, config)
+    table = report.markdown_tables(results)
+    (out / "eval.md").write_text(table)
+    print(table)
+    print(f"wrote {out / 'eval.json'}, {out / 'eval.md'}")
     return 0
 
 

@@ -213,6 +213,37 @@ def world_figure(env_id: str, suites: Sequence[str], store: Store, path: Path) -
     return _save(fig, path)
 
 
+def read_curve(path: Path) -> list[dict[str, Any]]:
+    """A training curve's rows (`metrics.jsonl`: one per PPO update, seed means)."""
+    import json
+
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def curves_figure(rows: Sequence[tuple[Cell, dict[str, Any]]], store: Store, path: Path,
+                  keys: Sequence[str] = ("success_rate", "violation_rate")) -> Path | None:
+    """Training curves of a world's cells side by side: one panel per metric, one line per
+    cell, against env steps per seed (None when no cell has a curve)."""
+    curves = [(c, read_curve(store.curve_path(c))) for c, _ in rows
+              if store.curve_path(c).exists()]
+    if not curves:
+        return None
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(keys), figsize=(5 * len(keys), 3.2), squeeze=False,
+                             layout="constrained")
+    for ax, key in zip(axes[0], keys):
+        for c, curve in curves:
+            points = [(r["env_steps"] / 1e6, r[key]) for r in curve
+                      if r.get(key) is not None and "env_steps" in r]
+            if points:
+                ax.plot(*zip(*points), label=method_label(c), linewidth=1)
+        ax.set_xlabel("env steps per seed (millions)", fontsize=8)
+        ax.set_ylabel(f"training {key.replace('_', ' ')} (seed mean)", fontsize=8)
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    return _save(fig, path)
+
+
 def dynamics_figure(store: Store, path: Path) -> Path:
     """The paper's figure (a): IND success / violation, Point / Car / Ant x LiDAR / image."""
     plt = _pyplot()
@@ -286,6 +317,11 @@ def render(store: Store | str | os.PathLike | None = None, out: str | os.PathLik
             name = f"success_violation_{grid.file_name(env_id)}.png"
             written.append(world_figure(env_id, suites, store, fig_dir / name))
             lines += [f"![{env_id}: success and violation per method]({rel}/{name})", ""]
+        name = f"training_curves_{grid.file_name(env_id)}.png"
+        curves = curves_figure(rows, store, fig_dir / name)
+        if curves is not None:
+            written.append(curves)
+            lines += [f"![{env_id}: training curves]({rel}/{name})", ""]
     written.append(dynamics_figure(store, fig_dir / "robot_dynamics_observation.png"))
     written.append(settings_figure(store, fig_dir / "partial_moving_arm.png"))
     lines += [

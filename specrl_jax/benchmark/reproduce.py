@@ -132,10 +132,12 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
             params = load(cell, trained, cell.seeds)
     else:
         source = grid.cell(cell.params_from) if cell.params_from in grid.BY_NAME else None
-        if source is None or not store.params_path(source).exists():
+        # the source cell's parameters in this store, else in the package's
+        held = [s for s in (store, Store()) if source and s.params_path(source).exists()]
+        if not held:
             raise ValueError(f"{cell.name} runs the seed-1 parameters of {cell.params_from}, "
                              f"which the store does not hold ({store.params_path(cell.params_from)})")
-        params = load(source, store.params_path(source), 1)
+        params = load(source, held[0].params_path(source), 1)
         record["training"] = {"params_from": cell.params_from}
     for suite in missing_work(cell, record):
         if suite == "train":

@@ -38,7 +38,8 @@ class Fakes:
         self.trained += 1
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "params.msgpack").write_bytes(b"")
-        (run_dir / "metrics.jsonl").write_text(json.dumps({"update": 1, "success_rate": 0.5}) + "\n")
+        rows = [{"update": u, "env_steps": 1024 * u, "success_rate": u / 2} for u in (1, 2)]
+        (run_dir / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
         params = {"w": np.zeros((cell.seeds, 3), np.float32)}
         return params, {"complete": True, "env_steps_per_seed": cell.total_steps,
                         "num_seeds": cell.seeds, "env_steps_per_s": 1000.0}

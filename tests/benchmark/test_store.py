@@ -1,22 +1,42 @@
 """The committed reference parameters still load from the store and act: seed 1 of
-LetterLTL0-v0/genz on a handful of IND episodes (the committed result is 1.00 success)."""
+LetterLTL0-v0/genz on a handful of IND episodes through `specrl-jax eval --policy CELL` (the
+committed result is 1.00 success); clear errors for other worlds and unknown names."""
+
+import json
 
 import jax
 import pytest
 
-from specrl_jax.baselines import experiment
+from specrl_jax import cli
 from specrl_jax.benchmark import grid
-from specrl_jax.benchmark.store import Store
+from specrl_jax.benchmark.store import Store, load_trained
+
+EVAL = ["eval", "--suite", "letter/finite/ind", "--seeds", "1", "--episodes", "2", "--no-progress"]
 
 
 @pytest.mark.slow  # compiling the evaluator: about 30 s on a quiet 2-core CPU
-def test_committed_parameters_load_and_evaluate():
+def test_committed_parameters_load_and_evaluate(tmp_path):
     store, cell = Store(), grid.cell("LetterLTL0-v0/genz")
     params = store.load_params(cell)
     assert jax.tree.leaves(params)[0].shape[0] == 1  # one seed, given a seed axis
-    (result,) = experiment.evaluate(cell.method, cell.env_id, params, ["letter/finite/ind"], 2,
-                                    log=lambda line: None)
-    metrics = result.suite_metrics()
-    assert result.result.seeds == (1,)
+    assert cli.main([*EVAL, "--env", "LetterLTL0-v0", "--policy", cell.name,
+                     "--out", str(tmp_path)]) == 0
+    (entry,) = json.loads((tmp_path / "eval.json").read_text())["results"]
+    assert entry["seeds"] == [1] and entry["method"] == "GenZ-LTL"
+    assert entry["summary"]["groups"]["letter/finite/ind"]["eta_s_mean"] >= 0.8
     stored = store.read(cell)["suites"]["letter/finite/ind"]["per_seed"]["eta_s"][0]
-    assert metrics["eta_s_mean"] >= 0.8 and min(stored) >= 0.95
+    assert min(stored) >= 0.95
+
+
+def test_trained_parameters_of_another_world_or_an_unknown_name_are_refused(tmp_path, capsys):
+    with pytest.raises(ValueError, match="trained on LetterLTL0-v0, not PointLTL0-v0"):
+        load_trained("LetterLTL0-v0/genz", env_id="PointLTL0-v0")
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"method": "genz", "env": "PointLTL0-v0"}))
+    assert cli.main([*EVAL, "--env", "LetterLTL0-v0", "--policy", str(run)]) == 2
+    assert "trained on PointLTL0-v0, not LetterLTL0-v0" in capsys.readouterr().err
+    assert cli.main([*EVAL, "--env", "LetterLTL0-v0", "--policy", "nothing/here"]) == 2
+    assert "neither a run directory" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="no trained parameters"):
+        load_trained("PandaLTLReach0Joints-v0/genz")
