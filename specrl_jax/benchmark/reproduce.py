@@ -3,8 +3,10 @@
 For each selected cell (`grid.select`): skip it when the store holds it complete; otherwise
 train its seeds side by side (`experiment.train` into `<store>/scratch/<cell>/run`, resumed
 from its checkpoint after an interruption), write seed 1's parameters and the training curve,
-then evaluate every suite not yet evaluated on all seeds (`cell.json` is written after each
-suite, so an interrupted evaluation resumes at the next suite). An evaluation-only cell (the
+then evaluate every suite not yet evaluated on all seeds (finite suites in one call, infinite
+ones in another; `cell.json` is written after each, so an interrupted evaluation resumes there).
+On a lent machine, `--store $OUT/store` keeps the results (and the resumable run directories
+under its `scratch/`) where they come back; copy the cell directories into the package store. An evaluation-only cell (the
 multi-agent coordinator) runs the seed-1 parameters of its `params_from` cell on every seed.
 
 On a host with several GPUs the cells run side by side, one per GPU (a subprocess each with
@@ -40,7 +42,8 @@ Log = Callable[[str], None]
 
 def default_train(cell: Cell, run_dir: Path, log: Log) -> tuple[Any, dict[str, Any]]:
     """Train `cell`'s seeds side by side with the family's shape on this device
-    (`experiment.default_overrides`) and the cell's PPO overrides."""
+    (`experiment.default_overrides`) and the cell's PPO overrides; LetterWorld resets from a
+    bank of 65,536 exactly sampled maps on an accelerator (4,096 on a CPU)."""
     import jax
 
     from specrl_jax.baselines import experiment
@@ -50,6 +53,7 @@ def default_train(cell: Cell, run_dir: Path, log: Log) -> tuple[Any, dict[str, A
                                              experiment.family(cell.env_id))
     overrides.update(dict(cell.ppo))
     return experiment.train(cell.method, cell.env_id, run_dir, overrides, cell.seeds, log=log,
+                            map_bank=65536 if platform != "cpu" else 4096,
                             env_options=dict(cell.env_options) or None,
                             method_options=cell.options() or None)
 
@@ -139,12 +143,17 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
                              f"which the store does not hold ({store.params_path(cell.params_from)})")
         params = load(source, held[0].params_path(source), 1)
         record["training"] = {"params_from": cell.params_from}
-    for suite in missing_work(cell, record):
-        if suite == "train":
+    missing = [s for s in missing_work(cell, record) if s != "train"]
+    # one call per horizon group (one compiled evaluator each): finite, then infinite suites;
+    # the record is written after each, so an interrupted evaluation resumes at its group
+    finite = [s for s in missing if "/finite/" in s]
+    for group in (finite, [s for s in missing if s not in finite]):
+        if not group:
             continue
-        log(f"{cell.name}: evaluating {suite} ({cell.seeds} seeds x {cell.episodes} episodes)")
+        log(f"{cell.name}: evaluating {', '.join(group)} ({cell.seeds} seeds x {cell.episodes} "
+            "episodes)")
         start = time.perf_counter()
-        results = evaluate(cell, params, [suite], log)
+        results = evaluate(cell, params, group, log)
         record["versions"], record["device"] = _versions()
         store.write(cell, record)
         record = store.add_suites(cell, results, time.perf_counter() - start)
