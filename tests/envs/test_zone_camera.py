@@ -31,7 +31,7 @@ COVER = 1.0 - 0.75**2  # a disc's two faces at alpha 0.25
 
 def _fidelity():
     spec = importlib.util.spec_from_file_location(
-        "vision_fidelity", os.path.join(ROOT, "benchmarks", "vision_fidelity.py")
+        "vision_fidelity", os.path.join(ROOT, "benchmarks", "lab", "vision_fidelity.py")
     )
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

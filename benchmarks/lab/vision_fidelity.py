@@ -6,22 +6,30 @@ one class per zone colour, robot) and reports the intersection over union of eac
 original's frames are anti-aliased (MuJoCo's 4 samples per pixel), so ours is rendered at
 `--supersample` times the size and box-averaged down.
 
-    python benchmarks/vision_fidelity.py   # prints the table, writes docs/vision_fidelity.png
+Prints one JSON row per robot (`benchmarks/harness.py`), appended to `--rows` if given, and
+writes the frames side by side with their classes to `--out`.
+
+    python benchmarks/lab/vision_fidelity.py   # writes docs/vision_fidelity.png
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from PIL import Image
 
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+
+import harness
+
 import specrl_jax
 
-DOCS = os.path.join(os.path.dirname(__file__), "..", "docs")
+DOCS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "docs")
 CLASSES = ("sky", "wall", "floor", "green", "yellow", "blue", "magenta", "robot")
 _PALETTE = np.array(
     [[0, 0, 0], [90, 90, 90], [235, 230, 215], [0, 220, 0], [240, 220, 0], [0, 0, 255],
@@ -91,10 +99,12 @@ def render_reference_layout(robot: str, size: int = 256, supersample: int = 4) -
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--supersample", type=int, default=4)
+    parser.add_argument("--robots", nargs="+", choices=tuple(QPOS), default=list(QPOS))
     parser.add_argument("--out", default=os.path.join(DOCS, "vision_fidelity.png"))
+    parser.add_argument("--rows", default=None, help="append the JSON rows to this file")
     args = parser.parse_args()
     rows, table = [], []
-    for robot in ("Point", "Car", "Ant"):
+    for robot in args.robots:
         ours = render_reference_layout(robot, supersample=args.supersample)
         original = original_frame(robot)
         scores = iou(ours, original)
@@ -107,11 +117,11 @@ def main() -> None:
     Image.fromarray(np.concatenate(
         [np.concatenate([row, np.full((4, row.shape[1], 3), 255, np.uint8)]) for row in rows]
     )).save(args.out)
-    print("| robot | " + " | ".join(CLASSES) + " |")
-    print("|---" * (len(CLASSES) + 1) + "|")
     for robot, scores in table:
-        cells = [f"{scores[c]:.3f}" if c in scores else "-" for c in CLASSES]
-        print(f"| {robot} | " + " | ".join(cells) + " |")
+        value = ", ".join(f"{name} {score:.3f}" for name, score in scores.items())
+        harness.emit(harness.row(
+            f"{robot}LTL0Vision-v0 frame vs the original's, IoU per pixel class "
+            f"(supersample {args.supersample})", value, None, iou=scores), args.rows)
     print(f"wrote {args.out}")
 
 

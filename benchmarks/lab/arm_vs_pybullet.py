@@ -22,7 +22,7 @@ PyBullet is an optional extra (`pip install -e ".[pybullet]"`; wheels for CPytho
 needs no PyBullet. The random and saturated rollouts run without the table and floor (from the
 neutral pose they reach neither); the pressing ones with them.
 
-    python benchmarks/arm_vs_pybullet.py --write-reference \
+    python benchmarks/lab/arm_vs_pybullet.py --write-reference \
         --out benchmarks/results/arm_vs_pybullet.json
 """
 
@@ -43,7 +43,7 @@ from specrl_jax.envs.arm import sensors
 from specrl_jax.envs.arm.ik import EndEffectorIK
 from specrl_jax.envs.arm.physics import SUBSTEPS, Physics
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 REFERENCE = ROOT / "tests" / "envs" / "data" / "arm_pybullet_rollouts.npz"
 ARM_JOINTS, FINGER_JOINTS, GRASP_TARGET = list(range(7)), [9, 10], 11
 MODE1_LINKS = [0, 1, 2, 3, 4, 5, 6, 8, 9, 10]
@@ -152,11 +152,12 @@ def pybullet_link_distances(qpos: np.ndarray, centres: np.ndarray, radius: float
 def our_link_distances(qpos: np.ndarray, centres: np.ndarray) -> np.ndarray:
     """`pybullet_link_distances`' figures from `PandaLTLReach1Joints-v0`'s own poses and hulls."""
     env, params = specrl_jax.make("PandaLTLReach1Joints-v0")
+    hulls = arm_model.link_hulls()
 
     def distances(q, where):
         _, state = env.reset_to(jax.random.key(0), {"region_pos": where, "joint_qpos": q}, params)
         pose = env.poses(state)
-        return sensors.link_sphere_distances(pose["link_pos"], pose["link_mat"], env._triangles,
+        return sensors.link_sphere_distances(pose["link_pos"], pose["link_mat"], hulls,
                                              state.region_pos, jnp.asarray(env.region_radius))[0]
 
     out = jax.jit(jax.vmap(distances))(jnp.asarray(qpos, jnp.float32),

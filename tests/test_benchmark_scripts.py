@@ -1,0 +1,88 @@
+"""Every benchmark script (benchmarks/ and benchmarks/lab/) runs at a tiny size on the CPU.
+
+Each script runs in a fresh process with tiny arguments and must exit 0 and write its result rows
+(`benchmarks/harness.py`: one JSON object per line with the figure, its value, device, batch,
+versions, date and command). Scripts that need a package CI lacks (PyBullet) or a CUDA GPU are
+skipped for that reason only. A new script must be added to `SCRIPTS` (the listing test fails
+otherwise), so nothing under benchmarks/ rots unseen.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+BENCHMARKS = ROOT / "benchmarks"
+
+#: script -> tiny arguments (`--out ROWS` is added); the compiled shapes are kept small
+SCRIPTS = {
+    "env_throughput.py": ["--envs", "LetterLTL0-v0", "--batches", "4", "--steps", "2",
+                          "--repeats", "1", "--loops", "world", "task", "--resets", "bank",
+                          "--bank-size", "4", "--determinism"],
+    "lab/automata_compile.py": ["--parts", "paper", "grid", "search", "--limit", "1",
+                                "--terms", "2", "--no-chain"],
+    "lab/zone_physics.py": ["--robots", "Point", "--steps", "2", "--seeds", "1"],
+    "lab/vision_fidelity.py": ["--robots", "Point", "--supersample", "1"],
+    "lab/arm_vs_pybullet.py": ["--episodes", "2", "--steps", "3"],
+    "lab/warp_profile.py": ["--robots", "Point", "--worlds", "4", "--substeps", "2"],
+}
+#: the result file's flag, where a script names it otherwise than `--out`
+ROW_FLAG = {"lab/vision_fidelity.py": "--rows"}
+#: scripts whose output is one JSON document of their own, not harness rows
+OWN_JSON = {"lab/arm_vs_pybullet.py"}
+#: modules and reproduction scripts that are no benchmark scripts of their own
+NOT_SCRIPTS = {"harness.py", "train_baselines.py", "eval_letter.py", "gcrl_outcomes.py",
+               "rad_pretrain.py", "ltl2action_pretrain.py", "compare_curves.py",
+               "eval_multi_agent.py"}
+ROW_KEYS = {"figure", "value", "device", "batch", "versions", "date", "command"}
+
+
+def test_every_script_has_a_smoke_run():
+    found = {str(p.relative_to(BENCHMARKS)) for p in BENCHMARKS.glob("*.py")}
+    found |= {str(p.relative_to(BENCHMARKS)) for p in BENCHMARKS.glob("lab/*.py")}
+    assert found - NOT_SCRIPTS == set(SCRIPTS)
+
+
+def _needs(script: str) -> None:
+    """Skip for a missing optional dependency, naming it."""
+    if script == "lab/arm_vs_pybullet.py":
+        pytest.importorskip("pybullet", reason="PyBullet (the optional `pybullet` extra)")
+    if script == "lab/warp_profile.py":
+        warp = pytest.importorskip("warp", reason="warp-lang (the optional `warp` extra)")
+        if not warp.is_cuda_available():
+            pytest.skip("needs a CUDA GPU: MuJoCo Warp times its stages with CUDA events")
+
+
+@pytest.mark.parametrize("script", sorted(SCRIPTS))
+def test_script_runs_tiny(script, tmp_path):
+    _needs(script)
+    out = tmp_path / "rows.json"
+    env = dict(os.environ, JAX_PLATFORMS=os.environ.get("JAX_PLATFORMS", "cpu"))
+    command = [sys.executable, str(BENCHMARKS / script), *SCRIPTS[script],
+               ROW_FLAG.get(script, "--out"), str(out)]
+    if script == "lab/vision_fidelity.py":
+        command += ["--out", str(tmp_path / "frames.png")]
+    done = subprocess.run(command, cwd=tmp_path, env=env, capture_output=True, text=True,
+                          timeout=900)
+    assert done.returncode == 0, f"{script} failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
+    assert out.exists(), f"{script} wrote no results"
+    if script in OWN_JSON:
+        assert json.loads(out.read_text())
+        return
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    assert rows, f"{script} wrote no rows"
+    for row in rows:
+        assert ROW_KEYS <= set(row), f"{script}: a row lacks {ROW_KEYS - set(row)}"
+    printed = [line for line in done.stdout.splitlines() if line.startswith("{")]
+    assert len(printed) == len(rows), f"{script} printed {len(printed)} rows, wrote {len(rows)}"
+
+
+def test_device_prelude_parses():
+    """The one shell script (sourced on a lent GPU machine) is at least valid bash."""
+    subprocess.run(["bash", "-n", str(BENCHMARKS / "device_prelude.sh")], check=True)
