@@ -122,3 +122,28 @@ def test_the_committed_store_and_the_list(capsys):
     assert reproduce.reproduce("LetterLTL0-v0/genz", store=store, log=print) == {
         "LetterLTL0-v0/genz": "done"}  # done: nothing is trained
     assert "done, skipped" in capsys.readouterr().out
+
+
+def test_several_gpus_run_one_cell_per_gpu_side_by_side(tmp_path, monkeypatch):
+    launched = []
+
+    class FakeProcess:  # a worker that finishes at once, having written nothing
+        def __init__(self, cmd, env, **kw):
+            launched.append((cmd, env["CUDA_VISIBLE_DEVICES"]))
+            self.stdout, self.returncode = iter(["worker line\n"]), 0
+
+        def poll(self):
+            return 0
+
+    monkeypatch.setattr(reproduce.subprocess, "Popen", FakeProcess)
+    monkeypatch.setattr(reproduce.time, "sleep", lambda s: None)
+    cells = grid.select("PointLTL1-v0/*")[:3]
+    lines = []
+    states = reproduce.reproduce(cells=cells, store=Store(tmp_path), gpus=2, log=lines.append,
+                                 worker_args=["--seeds", "1"])
+    assert states == {c.name: "missing" for c in cells}
+    assert [gpu for _, gpu in launched] == ["0", "1", "0"]
+    for (cmd, _), c in zip(launched, cells):
+        assert cmd[1:] == ["-m", "specrl_jax.benchmark.reproduce", "--cells", c.name, "--store",
+                           str(tmp_path), "--gpus", "1", "--seeds", "1"]
+    assert any("3/3 cells" in line and "ETA" in line for line in lines)
