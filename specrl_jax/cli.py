@@ -396,6 +396,8 @@ def run_command(args: argparse.Namespace) -> int:
     arg("--total-steps", type=positive_int, default=None, help="smoke runs: env steps per seed"),
     arg("--episodes", type=positive_int, default=None, help="smoke runs: episodes per spec and seed"),
     arg("--num-envs", type=positive_int, default=None, help="smoke runs: envs per seed"),
+    arg("--rerun", action="store_true",
+        help="discard the selected cells' stored results and run them end to end again"),
 )
 def reproduce_command(args: argparse.Namespace) -> int:
     from specrl_jax.benchmark import reproduce

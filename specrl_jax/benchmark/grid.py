@@ -44,7 +44,7 @@ MULTI_AGENT = tuple(f"multi_agent_zone/{k}" for k in (
 
 #: the issue's steps, in the order to fill them
 STEPS = {
-    0: "LetterWorld and PointLTL0, five methods; the multi-agent coordinator (done before the grid)",
+    0: "LetterWorld and PointLTL0, five methods; the multi-agent coordinator (before the grid)",
     1: "Arm, grippers-only (PandaLTLReach0Joints-v0), five methods",
     2: "Robot dynamics: CarLTL0 and AntLTL0 with LiDAR, five methods",
     3: "Partial observability, moving zones, arm modes",

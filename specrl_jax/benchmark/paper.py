@@ -3,7 +3,7 @@
 project found it quoted. Only quoted numbers are there; a missing entry means "not known".
 
     from specrl_jax.benchmark import paper
-    paper.lookup("PointLTL0-v0", "zone/finite/ind", "genz", "eta_s")   # PaperNumber(0.98, None, ...)
+    paper.lookup("PointLTL0-v0", "zone/finite/ind", "genz", "eta_s")  # mean 0.98, std None
 """
 
 from __future__ import annotations

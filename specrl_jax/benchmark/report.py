@@ -28,7 +28,8 @@ FINITE = (("eta_s", "η_s"), ("eta_v", "η_v"), ("mu", "μ steps"))
 INFINITE = (("mu_acc", "μ_acc"), ("eta_v", "η_v"), ("eta_a", "η_a"))
 MEASUREMENT_COLUMNS = ("figure", "value", "device", "batch", "date", "command")
 #: the paper's figure (a): robot dynamics x observation modality
-DYNAMICS = (("Point", "PointLTL0-v0", "PointLTL0Vision-v0"), ("Car", "CarLTL0-v0", "CarLTL0Vision-v0"),
+DYNAMICS = (("Point", "PointLTL0-v0", "PointLTL0Vision-v0"),
+            ("Car", "CarLTL0-v0", "CarLTL0Vision-v0"),
             ("Ant", "AntLTL0-v0", "AntLTL0Vision-v0"))
 #: the paper's figure (b): partial view, moving zones, the arm's two modes
 SETTINGS = (("LetterWorld partial view", "LetterLTL0-v0.partial", "letter/finite/ind"),
@@ -271,7 +272,8 @@ def settings_figure(store: Store, path: Path) -> Path:
 # The page
 
 
-def render(store: Store | str | os.PathLike | None = None, out: str | os.PathLike = "docs/results.md",
+def render(store: Store | str | os.PathLike | None = None,
+           out: str | os.PathLike = "docs/results.md",
            figures: str | os.PathLike | None = None,
            measurements: str | os.PathLike = MEASUREMENTS) -> list[Path]:
     """Write the page and its figures; returns the paths written."""
@@ -310,7 +312,8 @@ def render(store: Store | str | os.PathLike | None = None, out: str | os.PathLik
             table = suite_table(env_id, suite, rows, store)
             if table:
                 lines += [f"### {suite}", "", *table, ""]
-        notes = [f"- {method_label(c)}: {r['params_note']}" for c, r in rows if r.get("params_note")]
+        notes = [f"- {method_label(c)}: {r['params_note']}" for c, r in rows
+                 if r.get("params_note")]
         if notes:
             lines += [*notes, ""]
         if any("/finite/" in s for s in suites):

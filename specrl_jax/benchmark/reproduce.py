@@ -4,10 +4,12 @@ For each selected cell (`grid.select`): skip it when the store holds it complete
 train its seeds side by side (`experiment.train` into `<store>/scratch/<cell>/run`, resumed
 from its checkpoint after an interruption), write seed 1's parameters and the training curve,
 then evaluate every suite not yet evaluated on all seeds (finite suites in one call, infinite
-ones in another; `cell.json` is written after each, so an interrupted evaluation resumes there).
+ones in another; `cell.json` is written after each, so an interrupted evaluation resumes
+there). An evaluation-only cell (the multi-agent coordinator) runs the seed-1 parameters of its
+`params_from` cell on every seed. `rerun` discards a cell's stored results first.
+
 On a lent machine, `--store $OUT/store` keeps the results (and the resumable run directories
-under its `scratch/`) where they come back; copy the cell directories into the package store. An evaluation-only cell (the
-multi-agent coordinator) runs the seed-1 parameters of its `params_from` cell on every seed.
+under its `scratch/`) where they come back; copy the cell directories into the package store.
 
 On a host with several GPUs the cells run side by side, one per GPU (a subprocess each with
 `CUDA_VISIBLE_DEVICES`); on one GPU or a CPU, one after the other in this process.
@@ -101,7 +103,8 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     `evaluate(cell, params, suites, log) -> [SuiteResult]` and `load(cell, path, num_seeds)`
     replace the defaults (tests)."""
     store = store or Store()
-    train, evaluate, load = train or default_train, evaluate or default_evaluate, load or default_load
+    train, evaluate = train or default_train, evaluate or default_evaluate
+    load = load or default_load
     record = store.read(cell) or store.new_record(cell)
     record["config"] = cell.config()
     todo = missing_work(cell, record)
@@ -140,7 +143,8 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
         held = [s for s in (store, Store()) if source and s.params_path(source).exists()]
         if not held:
             raise ValueError(f"{cell.name} runs the seed-1 parameters of {cell.params_from}, "
-                             f"which the store does not hold ({store.params_path(cell.params_from)})")
+                             "which the store does not hold "
+                             f"({store.params_path(cell.params_from)})")
         params = load(source, held[0].params_path(source), 1)
         record["training"] = {"params_from": cell.params_from}
     missing = [s for s in missing_work(cell, record) if s != "train"]
@@ -182,7 +186,8 @@ def _plain(summary: dict[str, Any]) -> dict[str, Any]:
 
 
 def _genz_agent(network: Any, obs_kinds: dict[str, str]):
-    """GenZ-LTL on one agent: its reduced observation (reach / avoid LiDAR pooled) -> mode action."""
+    """GenZ-LTL on one agent: its reduced observation (reach / avoid LiDAR pooled) -> mode
+    action."""
     from specrl_jax.baselines import genz
 
     kinds = dict(obs_kinds)
@@ -299,12 +304,24 @@ def _duration(seconds: float) -> str:
     return f"{minutes:.0f} min" if minutes < 120 else f"{minutes / 60:.1f} h"
 
 
+def discard(cell: Cell, store: Store) -> None:
+    """Forget `cell`'s results and run directory in `store` (git keeps committed ones)."""
+    (store.cell_dir(cell) / "cell.json").unlink(missing_ok=True)
+    shutil.rmtree(store.scratch_dir(cell), ignore_errors=True)
+
+
 def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None = None,
               log: Log = print, gpus: int | None = None, cells: Sequence[Cell] | None = None,
-              worker_args: Sequence[str] = (), **run_options: Any) -> dict[str, str]:
-    """Run the selected cells (`grid.select(patterns)`, or `cells`); returns `{name: state}`."""
+              worker_args: Sequence[str] = (), rerun: bool = False,
+              **run_options: Any) -> dict[str, str]:
+    """Run the selected cells (`grid.select(patterns)`, or `cells`); returns `{name: state}`.
+    `rerun` discards what the store holds of them first, so they run end to end."""
     store = store or Store()
     chosen = list(cells) if cells is not None else grid.select(patterns)
+    if rerun:
+        for c in chosen:
+            log(f"{c.name}: discarding its stored results to run it again")
+            discard(c, store)
     todo = [c for c in chosen if store.state(c) != "done"]
     for c in chosen:
         if c not in todo:
@@ -324,7 +341,8 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
             run_cell(c, store, log=lambda line, c=c: log(f"[{c.name}] {line}"), **run_options)
             spent += time.perf_counter() - start
             estimated += grid.estimate_seconds(c)
-            left = sum(grid.estimate_seconds(x) for x in todo[i + 1:]) * spent / max(estimated, 1e-9)
+            rest = sum(grid.estimate_seconds(x) for x in todo[i + 1:])
+            left = rest * spent / max(estimated, 1e-9)
             log(f"{i + 1}/{len(todo)} cells finished in {_duration(spent)}; ETA {_duration(left)}")
     return {c.name: store.state(c) for c in chosen}
 
@@ -374,7 +392,8 @@ def _run_side_by_side(cells: Sequence[Cell], store: Store, gpus: int, log: Log,
 
 def main(argv: Sequence[str] | None = None) -> int:
     """`specrl-jax reproduce` (also `python -m specrl_jax.benchmark.reproduce`)."""
-    parser = argparse.ArgumentParser(prog="specrl-jax reproduce", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(prog="specrl-jax reproduce",
+                                     description=__doc__.split("\n")[0])
     add_arguments(parser)
     return run_from_args(parser.parse_args(argv))
 
@@ -384,13 +403,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="fnmatch pattern(s) of cell names, comma-separated (default: all), "
                              "e.g. 'LetterLTL0-v0/genz' or 'Panda*/*'")
     parser.add_argument("--list", action="store_true", help="show the grid, states and estimates")
-    parser.add_argument("--store", default=None, help="results store directory (default: the package's)")
+    parser.add_argument("--store", default=None,
+                        help="results store directory (default: the package's)")
     parser.add_argument("--gpus", type=int, default=None,
-                        help="cells side by side (default: the GPUs visible; 1: one after the other)")
+                        help="cells side by side (default: the visible GPUs; 1: in turn)")
     parser.add_argument("--seeds", type=int, default=None, help="smoke runs: seeds per cell")
-    parser.add_argument("--total-steps", type=int, default=None, help="smoke runs: env steps per seed")
-    parser.add_argument("--episodes", type=int, default=None, help="smoke runs: episodes per spec and seed")
+    parser.add_argument("--total-steps", type=int, default=None,
+                        help="smoke runs: env steps per seed")
+    parser.add_argument("--episodes", type=int, default=None,
+                        help="smoke runs: episodes per spec and seed")
     parser.add_argument("--num-envs", type=int, default=None, help="smoke runs: envs per seed")
+    parser.add_argument("--rerun", action="store_true",
+                        help="discard the selected cells' stored results and run them again")
 
 
 def run_from_args(args: argparse.Namespace) -> int:
@@ -410,6 +434,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         if value is not None:
             worker += [flag, str(value)]
     states = reproduce(cells=cells, store=store, gpus=args.gpus, worker_args=worker,
+                       rerun=getattr(args, "rerun", False),
                        log=lambda line: print(line, flush=True))
     incomplete = [n for n, s in states.items() if s != "done"]
     print(f"{len(states) - len(incomplete)}/{len(states)} cells done"

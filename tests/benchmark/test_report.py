@@ -66,8 +66,8 @@ def test_report_renders_a_tiny_store_deterministically(tmp_path):
     assert "GenZ-LTL **(partial: 1/5 seeds)**" in page  # the Car cell: grid asks for 5
     assert "| `PandaLTLReach0Joints-v0/genz` | 1 | missing | 0/5 |" in page
     assert "### Worlds" in page and "### Test suite" in page
-    assert "| LetterLTL0-v0 \\| map-bank resets | 777M env-steps/s | H100 | 1,048,576 | 2026-11-22 | " \
-           "`python benchmarks/env_throughput.py` |" in page
+    assert ("| LetterLTL0-v0 \\| map-bank resets | 777M env-steps/s | H100 | 1,048,576 | "
+            "2026-11-22 | `python benchmarks/env_throughput.py` |") in page
     assert "](figures/robot_dynamics_observation.png)" in page
 
 

@@ -147,3 +147,15 @@ def test_several_gpus_run_one_cell_per_gpu_side_by_side(tmp_path, monkeypatch):
         assert cmd[1:] == ["-m", "specrl_jax.benchmark.reproduce", "--cells", c.name, "--store",
                            str(tmp_path), "--gpus", "1", "--seeds", "1"]
     assert any("3/3 cells" in line and "ETA" in line for line in lines)
+
+
+def test_rerun_discards_a_done_cell_and_runs_it_end_to_end(tmp_path):
+    store = Store(tmp_path)
+    Fakes().run(store)
+    assert store.state(CELL) == "done"
+    fakes = Fakes()
+    states = reproduce.reproduce(cells=[CELL], store=store, gpus=1, log=lambda line: None,
+                                 rerun=True, train=fakes.train, evaluate=fakes.evaluate,
+                                 load=fakes.load)
+    assert states == {CELL.name: "done"}
+    assert fakes.trained == 1 and fakes.evaluated == list(CELL.suites)
