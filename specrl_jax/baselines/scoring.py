@@ -34,10 +34,13 @@ def score_chosen(score: Callable[[jax.Array], jax.Array], chosen: jax.Array,
     order = jnp.nonzero(chosen, size=-(-num // chunk) * chunk, fill_value=num)[0]
 
     def turn(loop):
-        start, scores = loop
-        ids = jax.lax.dynamic_slice(order, (start,), (chunk,))
-        return start + chunk, scores.at[ids].set(score(jnp.minimum(ids, num - 1)), mode="drop")
+        index, scores = loop
+        ids = jax.lax.dynamic_slice(order, (index * chunk,), (chunk,))
+        return index + 1, scores.at[ids].set(score(jnp.minimum(ids, num - 1)), mode="drop")
 
-    count = chosen.sum()
+    # The loop counts turns in steps of one: XLA (jaxlib 0.10.2, CPU) runs `i < 1` with
+    # `i += chunk` zero times when the bound is a compile-time constant (e.g. one candidate in a
+    # spec known at trace time), and every score stayed -inf.
+    turns = -(-chosen.sum() // chunk)
     start = (jnp.int32(0), jnp.full(num, -jnp.inf, jnp.float32))
-    return jax.lax.while_loop(lambda loop: loop[0] < count, turn, start)[1]
+    return jax.lax.while_loop(lambda loop: loop[0] < turns, turn, start)[1]

@@ -60,3 +60,15 @@ def test_planner_memory_per_episode_is_a_chunk_of_candidates(module):
     # Scoring every candidate at once (under vmap, at every step, with the weights copied per
     # episode) held ~7.6 MiB (GenZ-LTL) and ~1.1 MiB (DeepLTL) per episode here; a chunk ~80 KiB.
     assert _temp_per_episode(module, 32) < 2**18
+
+
+def test_score_chosen_scores_a_lone_candidate_known_at_compile_time():
+    # A chosen mask that XLA constant-folds (a spec known at trace time): with the loop stepping
+    # by `chunk`, jaxlib 0.10.2 ran `0 < 1` zero times on the CPU and returned only -inf, so
+    # GenZ-LTL's argmax fell on candidate 0 (proposition 0, possibly an avoided one).
+    score = lambda ids: ids.astype(jnp.float32) - 5.0  # noqa: E731
+    for count in range(1, 6):
+        chosen = np.zeros(8, bool)
+        chosen[8 - count:] = True
+        got = np.asarray(jax.jit(lambda: score_chosen(score, jnp.asarray(chosen), chunk=4))())
+        np.testing.assert_array_equal(got, np.where(chosen, np.arange(8) - 5.0, -np.inf))
