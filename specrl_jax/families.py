@@ -56,6 +56,8 @@ class WorldFamily:
             the coordinator over single-agent policies).
         map_bank: whether training resets draw from a bank of exactly sampled layouts
             (`env.with_map_bank`) by default.
+        reference_env: the family's standard world (its alphabet and propositions are the
+            family's: pretrained formula encoders are made on it).
     """
 
     name: str
@@ -69,6 +71,7 @@ class WorldFamily:
     formula_encoder: str | None = None
     trainable: bool = True
     map_bank: bool = False
+    reference_env: str = ""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "ppo", _frozen(self.ppo))
@@ -109,6 +112,7 @@ LETTER = WorldFamily(
                   "ltl2action": "deepltl/letter", "rad": "deepltl/letter"},
     formula_encoder="letter",
     map_bank=True,
+    reference_env="LetterLTL0-v0",
 )
 
 ZONE = WorldFamily(
@@ -124,7 +128,9 @@ ZONE = WorldFamily(
     task_sources={"genz": "genz/zone", "deepltl": "deepltl/zone",
                   "ltl2action": "deepltl/zone", "rad": "deepltl/zone"},
     formula_encoder="zone",
+    reference_env="PointLTL0-v0",
 )
+
 ARM = WorldFamily(
     name="arm",
     title="Panda arm",
@@ -140,6 +146,7 @@ ARM = WorldFamily(
     task_sources={"genz": "genz/zone", "deepltl": "deepltl/zone",
                   "ltl2action": "Until_1_2_1_1", "rad": "rad"},
     formula_encoder="zone",
+    reference_env="PandaLTLReach0Joints-v0",
 )
 
 MULTI_AGENT_ZONE = WorldFamily(
@@ -153,6 +160,7 @@ MULTI_AGENT_ZONE = WorldFamily(
     ppo=_ZONE_PPO,
     rollout=_WIDE,
     trainable=False,
+    reference_env="PointLTL0MA2-v0",
 )
 
 _FAMILIES: dict[str, WorldFamily] = {f.name: f for f in (LETTER, ZONE, ARM, MULTI_AGENT_ZONE)}

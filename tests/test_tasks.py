@@ -208,8 +208,7 @@ def test_env_symbol_runs_the_automaton_as_the_label_does():
 
     env, params = specrl_jax.make("LetterLTL0-v0")
     formulas = ["F a & F b", "!c U (d & F e)", "GF a & GF b", "G !f & F (g | h)"]
-    specs = automata.stack([automata.compile_spec(f, env.propositions, alphabet=env.alphabet)
-                            for f in formulas])
+    specs = automata.compile_suite(formulas, env.propositions, env.alphabet)
 
     def run(task):
         def body(state, key):

@@ -11,7 +11,14 @@ from specrl_jax.automata.stepping import (
     symbol_index,
     takes_epsilon,
 )
-from specrl_jax.automata.tensors import CompiledSpec, Pairs, compile_spec, pairs, stack
+from specrl_jax.automata.tensors import (
+    CompiledSpec,
+    Pairs,
+    compile_spec,
+    compile_suite,
+    pairs,
+    stack,
+)
 from specrl_jax.automata.translate import all_subsets, product, zero_or_one
 
 __all__ = [
@@ -20,6 +27,7 @@ __all__ = [
     "all_subsets",
     "check_labels",
     "compile_spec",
+    "compile_suite",
     "epsilon_slot",
     "has_epsilon",
     "label_symbol",

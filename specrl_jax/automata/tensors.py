@@ -332,3 +332,11 @@ def stack(specs: Sequence[CompiledSpec]) -> CompiledSpec:
             padded.append(arr)
         out[name] = np.stack(padded)
     return CompiledSpec(**jax.device_put(_with_derived(out)))
+
+
+def compile_suite(formulas: Sequence[str], propositions: Sequence[str],
+                  alphabet: np.ndarray | jax.Array) -> CompiledSpec:
+    """The one way to compile several formulas into one stacked bank: `compile_spec` of each
+    over `propositions` and `alphabet` (e.g. a world's `env.propositions`, `env.alphabet`), then
+    `stack`. The leading axis follows `formulas`."""
+    return stack([compile_spec(f, tuple(propositions), alphabet=alphabet) for f in formulas])

@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import jax
+import numpy as np
 from flax import serialization
 
 #: the shipped artefacts of the baselines (pretrained formula encoders)
@@ -56,6 +58,28 @@ def load_params_into(template: Any, stored: Any) -> Any:
         return serialization.from_state_dict(template, stored)
     except Exception as err:  # flax raises assorted types for a tree of another structure
         raise ValueError(f"stored tree does not fit ({type(err).__name__}: {err})") from err
+
+
+def load_encoder_file(family_or_path: str | os.PathLike, shipped: Callable[[str], Path],
+                      method: str, title: str, input_layer: str) -> tuple[Path, Any, int]:
+    """A pretrained formula encoder: the package's shipped one of a world family ("letter",
+    "zone", at `shipped(family)`) or a file. Returns `(path, parameters, input width of the
+    layer `input_layer`)` for the method's own shape check.
+
+    Raises:
+        ValueError: no such file, or no `title` encoder parameters in it.
+    """
+    name = str(family_or_path)
+    path = shipped(name) if name in ("letter", "zone") else Path(family_or_path)
+    if not path.exists():
+        raise ValueError(f"no pretrained {title} encoder at {path}; make one with "
+                         f"`specrl-jax pretrain --method {method} --family letter --out PATH`")
+    stored = load_params(path, what=f"{title} encoder parameters")
+    try:
+        width = int(np.shape(stored["params"][input_layer]["kernel"])[0])
+    except (KeyError, TypeError):
+        raise ValueError(f"{path} holds no {title} encoder parameters") from None
+    return path, stored, width
 
 
 def read_meta(path: str | os.PathLike) -> dict[str, Any]:

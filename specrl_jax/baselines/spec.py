@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 from specrl_jax.baselines.ppo.train import Method, PPOConfig
@@ -43,6 +44,9 @@ class MethodSpec:
         policy_takes_suites: whether `make_policy` needs the evaluated suites' names.
         coordinator_agent: `(network, obs_kinds, ...)`, the agent the multi-agent coordinator
             drives, where the method has one.
+        pretrain: `(world, family, key, steps, log, **ppo_shape) -> encoder parameters`, where
+            the method pretrains a formula encoder (`specrl-jax pretrain`).
+        shipped_encoder: `(family) -> Path`, where the package keeps its pretrained encoder.
     """
 
     name: str
@@ -59,6 +63,8 @@ class MethodSpec:
     usable_suites: Callable[[Sequence[str], Callable[[str], None]], list[str]] | None = None
     policy_takes_suites: bool = False
     coordinator_agent: Callable[..., Any] | None = None
+    pretrain: Callable[..., Any] | None = None
+    shipped_encoder: Callable[[str], Path] | None = None
 
     def check_options(self, options: dict[str, Any] | None) -> None:
         """A ValueError naming the options this method does not take, listing those it does."""

@@ -33,6 +33,8 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+from specrl_jax.envs import compiled
+
 Obs = dict[str, jax.Array]
 Info = dict[str, Any]
 StepOut = tuple[Obs, Any, jax.Array, jax.Array, jax.Array, Info]
@@ -142,24 +144,6 @@ class _Compiled:
         self.step = jax.jit(env.step)
 
 
-#: (env type, config) -> its compiled functions, shared by every env of that config
-_COMPILED: dict[Any, _Compiled] = {}
-
-
 def _compiled(env: Env) -> _Compiled:
-    """The compiled functions of `env`'s type and config (per instance without a hashable config).
-
-    Sharing by config is sound because an env is its frozen config plus pure functions.
-    """
-    try:
-        key = (type(env), env.config)
-        hash(key)
-    except (AttributeError, TypeError):
-        compiled = env.__dict__.get("_compiled_fns")
-        if compiled is None:
-            compiled = env.__dict__["_compiled_fns"] = _Compiled(env)
-        return compiled
-    if key not in _COMPILED:
-        _COMPILED[key] = _Compiled(env)
-    return _COMPILED[key]
-
+    """The compiled functions of `env`'s type and config (per instance without a hashable config)."""
+    return compiled.shared(env, "eager", lambda: _Compiled(env))

@@ -94,10 +94,7 @@ def prepare_specs(env: Any, specs: Any) -> tuple[Any, tuple[str, ...]]:
     if not specs:
         raise ValueError("no specs to evaluate")
     if all(isinstance(s, str) for s in specs):
-        compiled = [
-            automata.compile_spec(f, env.propositions, alphabet=env.alphabet) for f in specs
-        ]
-        return automata.stack(compiled), tuple(specs)
+        return automata.compile_suite(specs, env.propositions, env.alphabet), tuple(specs)
     if all(hasattr(s, "delta") for s in specs):
         return automata.stack(specs), tuple(f"spec{i}" for i in range(len(specs)))
     raise TypeError("specs must be all formula strings or all CompiledSpec objects")

@@ -1,4 +1,4 @@
-"""Evaluating a policy on named suites: the one place that compiles suites, groups them by
+"""Evaluating a policy on named suites: compiles them (`automata.compile_suite`), groups them by
 episode horizon and splits the result back into one `SuiteResult` per suite.
 
 Finite suites run the world's horizon (`params.max_steps`); infinite ones
@@ -93,8 +93,7 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
             indices[name] = list(range(len(formulas), len(formulas) + len(specs.suite(name))))
             formulas += specs.suite(name)
         groups.append((steps, list(range(start, len(formulas))), indices))
-    compiled = automata.stack(
-        [automata.compile_spec(f, env.propositions, alphabet=env.alphabet) for f in formulas])
+    compiled = automata.compile_suite(formulas, env.propositions, env.alphabet)
     # One program for every horizon: the group's specs and its horizon are arguments, each
     # group padded to the largest by repeating its last spec. A lone group keeps its horizon
     # fixed at compile time (a scan, faster than the while loop of a traced horizon).

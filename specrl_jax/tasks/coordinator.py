@@ -194,8 +194,7 @@ def compile_system_specs(formulas: Sequence[str], env: Any) -> Any:
     """Check and compile system-level formulas over `env`'s joint propositions; stacked."""
     for formula in formulas:
         check_spec_agents(formula, env)
-    return automata.stack([automata.compile_spec(f, env.propositions, alphabet=env.alphabet)
-                           for f in formulas])
+    return automata.compile_suite(formulas, env.propositions, env.alphabet)
 
 
 def make_coordinator(agent_policy: AgentPolicy, env: Any, obs_keys: Sequence[str] = ("ap", "ego")

@@ -130,8 +130,7 @@ def test_test_time_agent_progresses_the_evaluated_formula_itself():
     exactly when the task loop's automaton reports success, false exactly on violation."""
     world, params = _tiny_world(max_steps=30)
     formulas = ["!b U a", "F(a & F b)", "!a U b"]
-    compiled = automata.stack([automata.compile_spec(f, world.propositions, alphabet=world.alphabet)
-                               for f in formulas])
+    compiled = automata.compile_suite(formulas, world.propositions, world.alphabet)
     candidates = ["F a", "F b"] + list(reversed(formulas))
     assert ltl2action.match_formulas(compiled, candidates, world.propositions,
                                      np.asarray(world.alphabet)) == formulas

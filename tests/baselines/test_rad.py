@@ -22,9 +22,7 @@ def test_rad_learns_a_tiny_letter_world_and_its_policy_solves_the_compiled_specs
     world, params = make_letter_world(LetterConfig(grid_size=5, letters=("a", "b"), counts=1),
                                       max_steps=6)
     params = world.with_map_bank(jax.random.key(0), params, num_maps=64)
-    compiled = automata.stack([automata.compile_spec(f, world.propositions,
-                                                     alphabet=world.alphabet)
-                               for f in TINY_FORMULAS])
+    compiled = automata.compile_suite(TINY_FORMULAS, world.propositions, world.alphabet)
     bank, _ = rad_sampler.bank_of_specs(compiled)
     # a frozen, randomly initialised encoder (small, to compile fast): its embeddings already
     # tell the four tasks apart

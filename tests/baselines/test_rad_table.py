@@ -133,8 +133,7 @@ def test_a_bank_over_the_row_budget_raises_or_falls_back_to_per_step(small):
 def test_evaluation_table_equals_the_per_step_embeddings_of_every_spec_state(small):
     world, _, _, _, encoder_params = small
     formulas = ["F a", "!a U b", "F (a & F (b & F c))", "(!d U a) & F b", "!c U (a & F d)"]
-    compiled = automata.stack([automata.compile_spec(f, world.propositions,
-                                                     alphabet=world.alphabet) for f in formulas])
+    compiled = automata.compile_suite(formulas, world.propositions, world.alphabet)
     bank, _ = rad_sampler.bank_of_specs(compiled)
     graphs = build_graphs(bank)
     num_states = np.asarray(bank.num_states)[:, 0]

@@ -91,8 +91,7 @@ def test_training_and_evaluation_agree_on_an_episode():
     """The trainer's env and the evaluator run the same task loop: same key, same actions, same
     flags and step counts."""
     world, params = specrl_jax.make("LetterLTL0-v0")
-    specs = automata.stack([automata.compile_spec(f, world.propositions, alphabet=world.alphabet)
-                            for f in ("!a U b", "F (c & F d)", "G !e & F f")])
+    specs = automata.compile_suite(("!a U b", "F (c & F d)", "G !e & F f"), world.propositions, world.alphabet)
     task = TaskEnv(world, specs)
     actions = jax.random.randint(jax.random.key(5), (75,), 0, 4)
     policy = as_stateful(lambda p, obs, state, key: actions[state.time])

@@ -75,9 +75,7 @@ def test_one_program_for_all_horizons_equals_one_evaluator_per_suite():
     results = evaluate_suites(policy, "LetterLTL0-v0", env, params, names, episodes=3,
                               seeds=[1, 2], infinite_horizon=40, log=lambda line: None)
     for name, result, steps in zip(names, results, (75, 40)):
-        spec_stack = automata.stack([automata.compile_spec(f, env.propositions,
-                                                           alphabet=env.alphabet)
-                                     for f in specs.suite(name)])
+        spec_stack = automata.compile_suite(specs.suite(name), env.propositions, env.alphabet)
         alone = make_evaluator(policy, TaskEnv(env, spec_stack), params.replace(max_steps=steps),
                                episodes_per_seed=3, original=originals(specs.suite(name), env))(
             None, jnp.asarray([1, 2], jnp.uint32))

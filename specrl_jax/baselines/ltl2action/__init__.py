@@ -230,6 +230,19 @@ def pretrain_encoder(alphabet: np.ndarray, propositions: tuple[str, ...], formul
     return pretrain.encoder_params(params)
 
 
+def pretrain_for_world(world: Any, family: str, key: jax.Array, steps: int,
+                       log: Callable[[str], None] = print, num_formulas: int = 1024, seed: int = 0,
+                       sampler: str | None = None, **ppo_shape: Any) -> Any:
+    """LTLBootcamp on `world`'s alphabet over the formulas the method trains on in `family` (its
+    curriculum by stages, or draws of `sampler`); returns the R-GCN's parameters."""
+    by_stage = training_formulas(world.propositions, family, num_formulas, seed, sampler)
+    formulas = [f for stage in by_stage for f in stage]
+    stages = ([len(s) for s in by_stage] if check_sampler(family, sampler) == "curriculum"
+              else None)
+    return pretrain_encoder(np.asarray(world.alphabet), tuple(world.propositions), formulas,
+                            stages, family, key, steps, log, **ppo_shape)
+
+
 def prepare_training(method: LTL2Action, key: jax.Array, config: PPOConfig,
                      log: Callable[[str], None] = print) -> LTL2Action:
     """Before PPO: with `pretrain_steps` and no encoder yet, pretrain the R-GCN on the symbol
@@ -363,4 +376,5 @@ SPEC = MethodSpec(
     options=("formulas", "num_formulas", "seed", "sampler", "encoder", "freeze_encoder",
              "pretrain_steps", "stages", "network"),
     prepare_training=prepare_training, policy_takes_suites=True,
+    pretrain=pretrain_for_world, shipped_encoder=pretrain.shipped_encoder_path,
 )

@@ -22,10 +22,9 @@ from typing import Any
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from specrl_jax.baselines.ltl2action.networks import ENCODER, FormulaObs, RGCNEncoder
-from specrl_jax.baselines.params_io import DATA_DIR, load_params, save_params
+from specrl_jax.baselines.params_io import DATA_DIR, load_encoder_file, save_params
 from specrl_jax.baselines.ppo.networks import Categorical, PolicyOutput, unit_columns
 from specrl_jax.baselines.ppo.train import PPOConfig
 from specrl_jax.baselines.pretraining import pretrain_config
@@ -81,16 +80,8 @@ def load_encoder(family_or_path: str | Path, num_propositions: int) -> Any:
         ValueError: no such file, no R-GCN parameters in it, or made for another number of
             propositions.
     """
-    shipped = str(family_or_path) in ("letter", "zone")
-    path = shipped_encoder_path(str(family_or_path)) if shipped else Path(family_or_path)
-    if not path.exists():
-        raise ValueError(f"no pretrained LTL2Action encoder at {path}; make one with "
-                         "`specrl-jax pretrain --method ltl2action --family letter --out PATH`")
-    stored = load_params(path, what="LTL2Action encoder parameters")
-    try:
-        width = np.shape(stored["params"]["Dense_0"]["kernel"])[0]
-    except (KeyError, TypeError):
-        raise ValueError(f"{path} holds no LTL2Action encoder parameters") from None
+    path, stored, width = load_encoder_file(family_or_path, shipped_encoder_path, "ltl2action",
+                                            "LTL2Action", "Dense_0")
     if width != num_features(num_propositions):
         raise ValueError(f"the encoder at {path} reads {width} formula tokens; "
                          f"{num_propositions} propositions need {num_features(num_propositions)}")

@@ -274,6 +274,14 @@ def make_method(world: Any, params: Any, family: str | None = None, bank: DFABan
     return RAD(TaskTrainEnv(task, params, signals), network_for(world, encoder))
 
 
+def pretrain_for_world(world: Any, family: str, key: jax.Array, steps: int,
+                       log: Callable[[str], None] = print, bank_size: int = 8192, seed: int = 0,
+                       **ppo_shape: Any) -> Any:
+    """The encoder pretrained on the symbol task over `world`'s alphabet (`rad.pretrain`)."""
+    return rad_pretrain.pretrain_encoder(np.asarray(world.alphabet), tuple(world.propositions),
+                                         family, key, steps, bank_size, seed, log, **ppo_shape)
+
+
 def summarise(row: dict[str, float]) -> dict[str, float]:
     episodes = max(row["episodes"], 1.0)
     return {**row, "success_rate": row["successes"] / episodes,
@@ -341,5 +349,6 @@ SPEC = MethodSpec(
     make_policy=make_policy, summarise=summarise,
     options=("bank", "bank_size", "seed", "encoder", "encoder_params", "encoder_layers",
              "max_table_rows", "sampler", "per_stage"),
-    usable_suites=usable_suites,
+    usable_suites=usable_suites, pretrain=pretrain_for_world,
+    shipped_encoder=rad_pretrain.encoder_path,
 )

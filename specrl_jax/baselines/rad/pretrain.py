@@ -29,7 +29,7 @@ import numpy as np
 from specrl_jax import families
 from specrl_jax.automata import rad_sampler
 from specrl_jax.automata.rad_sampler import DFABank
-from specrl_jax.baselines.params_io import DATA_DIR, load_params, save_params
+from specrl_jax.baselines.params_io import DATA_DIR, load_encoder_file, save_params
 from specrl_jax.baselines.ppo.networks import Categorical, PolicyOutput, unit_columns
 from specrl_jax.baselines.ppo.train import Method
 from specrl_jax.baselines.pretraining import SymbolWorld, pretrain_config, run_pretraining
@@ -167,16 +167,7 @@ def load_encoder(family_or_path: str | Path, num_symbols: int) -> Any:
     Raises:
         ValueError: no such file, or the file is for another alphabet size.
     """
-    path = (encoder_path(str(family_or_path)) if str(family_or_path) in ("letter", "zone")
-            else Path(family_or_path))
-    if not path.exists():
-        raise ValueError(f"no pretrained RAD encoder at {path}; make one with "
-                         "`specrl-jax pretrain --method rad --family letter --out PATH`")
-    stored = load_params(path, what="RAD encoder parameters")
-    try:
-        width = np.shape(stored["params"]["embed"]["kernel"])[0]
-    except (KeyError, TypeError):
-        raise ValueError(f"{path} holds no RAD encoder parameters") from None
+    path, stored, width = load_encoder_file(family_or_path, encoder_path, "rad", "RAD", "embed")
     if width != num_features(num_symbols):
         raise ValueError(f"the encoder at {path} reads {width - NUM_FLAGS} symbols; the "
                          f"alphabet has {num_symbols}; RAD needs an encoder pretrained on this "
