@@ -23,6 +23,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from specrl_jax import families
+
 METHODS = ("genz", "deepltl", "ltl2action", "gcrl", "rad")
 #: methods the paper evaluates on the infinite suites (RAD-Embeddings only on co-safe ones;
 #: on the arm the paper's infinite rows are GenZ-LTL, DeepLTL and GCRL-LTL)
@@ -33,14 +35,12 @@ PACKAGE = Path(__file__).resolve().parents[1]
 #: a method option starting with this names a file shipped in the package (resolved at run time)
 PACKAGE_FILE = "package:"
 
-LETTER = ("letter/finite/ind", "letter/finite/ood", "letter/infinite/rsp", "letter/infinite/rec")
-ZONE = ("zone/finite/ind", "zone/finite/ood", "zone/infinite/rsp", "zone/infinite/rec",
-        "zone/infinite/per")
-ARM0 = ("arm_grippers/finite/ind", "arm_grippers/finite/ood", "arm_grippers/infinite/rsp",
-        "arm_grippers/infinite/rec", "arm_grippers/infinite/per")
-ARM1 = ("arm_grippers_arm/finite/ind", "arm_grippers_arm/finite/ood")
-MULTI_AGENT = tuple(f"multi_agent_zone/{k}" for k in (
-    "finite/indep", "finite/coop", "finite/mix", "infinite/rsp", "infinite/rec", "infinite/per"))
+# the paper's suites of each world, from the family records
+LETTER = families.LETTER.suites
+ZONE = families.ZONE.suites
+ARM0 = tuple(s for s in families.ARM.suites if s.startswith("arm_grippers/"))
+ARM1 = tuple(s for s in families.ARM.suites if s.startswith("arm_grippers_arm/"))
+MULTI_AGENT = families.MULTI_AGENT_ZONE.suites
 
 #: the issue's steps, in the order to fill them
 STEPS = {
