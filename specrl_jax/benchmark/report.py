@@ -245,6 +245,50 @@ def curves_figure(rows: Sequence[tuple[Cell, dict[str, Any]]], store: Store, pat
     return _save(fig, path)
 
 
+ZONE_COLOURS = {"green": "#2ca02c", "yellow": "#e6c200", "blue": "#1f5fd6", "magenta": "#d62fd6"}
+OUTCOME_STYLES = {"success": "-", "violation": "--", "timeout": ":"}
+
+
+def trajectories_figure(env_id: str, store: Store, path: Path) -> Path | None:
+    """The paper's trajectory figure: each method's recorded episodes of the trajectory formula
+    on the arena, the first episode's zones drawn (every method meets the same layouts); a
+    method without recorded episodes is drawn as missing. None when no cell of `env_id` has
+    any."""
+    from matplotlib.patches import Circle
+
+    cells = [c for c in grid.GRID if c.env_id == env_id and not c.variant]
+    found = {c.method: store.read_trajectories(c) for c in cells}
+    if not any(found.values()):
+        return None
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, len(grid.METHODS), figsize=(3.0 * len(grid.METHODS), 3.2),
+                             layout="constrained")
+    formula = next(t["formula"] for t in found.values() if t)
+    for ax, method in zip(axes, grid.METHODS):
+        ax.set_title(METHOD_NAMES[method], fontsize=9)
+        ax.set_xlim(-3.3, 3.3)
+        ax.set_ylim(-3.3, 3.3)
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        data = found.get(method)
+        if not data:
+            ax.text(0, 0, "missing", ha="center", va="center", fontsize=8, color="0.5")
+            continue
+        first = data["episodes"][0]
+        for (x, y), colour, radius in zip(first["zone_xy"], first["zone_color"],
+                                          first["zone_radius"]):
+            ax.add_patch(Circle((x, y), radius, color=ZONE_COLOURS.get(colour, "0.6"), alpha=0.5))
+        episode = first
+        xy = episode["xy"]
+        ax.plot([p[0] for p in xy], [p[1] for p in xy], "k", linewidth=1,
+                linestyle=OUTCOME_STYLES.get(episode["outcome"], "-"))
+        ax.plot(*xy[0], "ko", markersize=3)
+        ax.set_xlabel(episode["outcome"], fontsize=8)
+    fig.suptitle(f"{env_id}: {formula} (seed 1, first recorded episode)", fontsize=9)
+    return _save(fig, path)
+
+
 def dynamics_figure(store: Store, path: Path) -> Path:
     """The paper's figure (a): IND success / violation, Point / Car / Ant x LiDAR / image."""
     plt = _pyplot()
@@ -325,6 +369,13 @@ def render(store: Store | str | os.PathLike | None = None,
         if curves is not None:
             written.append(curves)
             lines += [f"![{env_id}: training curves]({rel}/{name})", ""]
+    trajectories = []
+    for env_id in ("PointLTL0-v0", "CarLTL0-v0", "AntLTL0-v0"):
+        name = f"trajectories_{grid.file_name(env_id)}.png"
+        drawn = trajectories_figure(env_id, store, fig_dir / name)
+        if drawn is not None:
+            written.append(drawn)
+            trajectories.append(f"![{env_id}: trajectories]({rel}/{name})")
     written.append(dynamics_figure(store, fig_dir / "robot_dynamics_observation.png"))
     written.append(settings_figure(store, fig_dir / "partial_moving_arm.png"))
     lines += [
@@ -337,6 +388,7 @@ def render(store: Store | str | os.PathLike | None = None,
         "",
         f"![partial view, moving zones, arm modes]({rel}/partial_moving_arm.png)",
         "",
+        *(f"{line}\n" for line in trajectories),
         "Where the paper's numbers come from: " + "; ".join(paper.sources()) + ". The paper's "
         "multi-agent table is not quoted in any source the project holds.",
         "",

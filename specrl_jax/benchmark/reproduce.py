@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import os
 import shutil
 import subprocess
@@ -97,11 +98,13 @@ def _versions() -> tuple[dict[str, str], str]:
 
 def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
              train: Callable | None = None, evaluate: Callable | None = None,
-             load: Callable | None = None) -> dict[str, Any]:
+             load: Callable | None = None, trajectories: Callable | bool = True
+             ) -> dict[str, Any]:
     """Complete `cell` in `store`: train if its training is not complete, evaluate the suites
-    it lacks; returns its record. `train(cell, run_dir, log) -> (params, summary)`,
-    `evaluate(cell, params, suites, log) -> [SuiteResult]` and `load(cell, path, num_seeds)`
-    replace the defaults (tests)."""
+    it lacks, record the trajectory figure's episodes on a Zone LiDAR world; returns its
+    record. `train(cell, run_dir, log) -> (params, summary)`, `evaluate(cell, params, suites,
+    log) -> [SuiteResult]`, `load(cell, path, num_seeds)` and `trajectories(cell, params) ->
+    dict` replace the defaults (tests; `trajectories=False`: none recorded)."""
     store = store or Store()
     train, evaluate = train or default_train, evaluate or default_evaluate
     load = load or default_load
@@ -161,9 +164,19 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
         record["versions"], record["device"] = _versions()
         store.write(cell, record)
         record = store.add_suites(cell, results, time.perf_counter() - start)
-    record = store.read(cell)
-    log(f"{cell.name}: {record['state']}")
-    return record
+    if trajectories and records_trajectories(cell) and params is not None \
+            and not store.trajectories_path(cell).exists():
+        log(f"{cell.name}: recording the trajectory figure's episodes")
+        recorder = record_trajectories if trajectories is True else trajectories
+        try:  # a figure's episodes: a failure here leaves the cell's results as they are
+            episodes = recorder(cell, params)
+        except Exception as err:  # noqa: BLE001
+            log(f"{cell.name}: no trajectories recorded: {type(err).__name__}: {err}")
+        else:
+            store.trajectories_path(cell).write_text(json.dumps(episodes, sort_keys=True) + "\n")
+    result = store.read(cell)
+    log(f"{cell.name}: {result['state']}")
+    return result
 
 
 def training_wall(summary: dict[str, Any], fallback: float) -> float:
@@ -176,9 +189,66 @@ def training_wall(summary: dict[str, Any], fallback: float) -> float:
 
 
 def _plain(summary: dict[str, Any]) -> dict[str, Any]:
-    import json
-
     return json.loads(json.dumps(summary, default=str))
+
+
+# ---------------------------------------------------------------------------------------------
+# Trajectories on the arena (the paper's trajectory figure)
+
+#: the paper's trajectory figure: this formula (zone/finite/ind's first) on the Zone arena
+TRAJECTORY_SUITE, TRAJECTORY_INDEX = "zone/finite/ind", 0
+TRAJECTORY_SEED = 2026
+
+
+def records_trajectories(cell: Cell) -> bool:
+    """Whether `cell` draws the trajectory figure's episodes (single-agent Zone LiDAR worlds)."""
+    return cell.trains and cell.env_id in ("PointLTL0-v0", "CarLTL0-v0", "AntLTL0-v0")
+
+
+def record_trajectories(cell: Cell, params: Any, episodes: int = 3) -> dict[str, Any]:
+    """`episodes` episodes of the trajectory formula with seed 1's parameters (`params`, seed
+    axis first): the agent's xy per step, each episode's outcome, and its zones. The reset keys
+    are fixed, so every method of a world meets the same layouts."""
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    from specrl_jax import automata, specs
+    from specrl_jax.baselines import experiment
+    from specrl_jax.envs.registry import make
+    from specrl_jax.eval.evaluate import record_episodes
+    from specrl_jax.tasks import TaskEnv
+
+    world, env_params = make(cell.env_id, **dict(cell.env_options))
+    family = experiment.family(cell.env_id)
+    method_obj = experiment.make_method(cell.method, world, env_params, family,
+                                        cell.options() or None)
+    options = {"suites": (TRAJECTORY_SUITE,)} if cell.method == "ltl2action" else {}
+    policy = experiment.make_policy(cell.method, world, method_obj, None, family, **options)
+    formulas = specs.suite(TRAJECTORY_SUITE)
+    compiled = automata.stack([automata.compile_spec(f, world.propositions, alphabet=world.alphabet)
+                               for f in formulas])
+    keys = jax.random.split(jax.random.key(TRAJECTORY_SEED), episodes)
+    one = jax.tree.map(lambda x: x[0], params)
+    states, alive = jax.device_get(record_episodes(
+        policy, TaskEnv(world, compiled), env_params, keys,
+        jnp.full(episodes, TRAJECTORY_INDEX, jnp.int32), policy_params=one))
+    xy = np.asarray(states.env_state.physics.agent_pos)[..., :2]
+    layouts = jax.device_get(jax.vmap(world.layout)(
+        jax.tree.map(lambda x: x[:, 0], states.env_state)))
+    out = []
+    for i in range(episodes):
+        steps = int(np.asarray(alive[i]).sum())
+        success, violation = bool(states.success[i, -1]), bool(states.violation[i, -1])
+        out.append({
+            "xy": np.round(xy[i, :steps], 3).tolist(),
+            "outcome": "success" if success else "violation" if violation else "timeout",
+            "zone_xy": np.round(np.asarray(layouts["zone_xy"][i]), 3).tolist(),
+            "zone_color": [world.propositions[int(c)] for c in layouts["zone_color"][i]],
+            "zone_radius": np.round(np.asarray(layouts["zone_radius"][i]), 3).tolist(),
+        })
+    return {"formula": formulas[TRAJECTORY_INDEX], "suite": TRAJECTORY_SUITE,
+            "seed": TRAJECTORY_SEED, "params": "seed 1", "episodes": out}
 
 
 # ---------------------------------------------------------------------------------------------

@@ -6,7 +6,8 @@
   mean and std over seeds per spec and for the suite;
 - `params_seed1.msgpack`: seed 1's trained parameters (no seed axis; `experiment.load_params`
   reads it with `num_seeds=1`);
-- `metrics.jsonl`: the training curve (one row per PPO update, seed means).
+- `metrics.jsonl`: the training curve (one row per PPO update, seed means);
+- `trajectories.json` (Zone LiDAR worlds): a few episodes of the paper's trajectory figure.
 
 A cell is `done` when every suite of its grid entry is evaluated on all its seeds, `partial`
 when some of it is, `missing` without a `cell.json`. `Store(root)` reads and writes another
@@ -31,6 +32,7 @@ DEFAULT_ROOT = Path(__file__).resolve().parent / "results"
 CELL_FILE = "cell.json"
 PARAMS_FILE = "params_seed1.msgpack"
 CURVE_FILE = "metrics.jsonl"
+TRAJECTORY_FILE = "trajectories.json"
 SCRATCH = "scratch"
 STATES = ("done", "partial", "missing")
 SCHEMA = 1
@@ -81,6 +83,10 @@ class Store:
     def curve_path(self, cell: Cell | str) -> Path:
         return self.cell_dir(cell) / CURVE_FILE
 
+    def trajectories_path(self, cell: Cell | str) -> Path:
+        """Episodes of the paper's trajectory figure (Zone LiDAR cells; `reproduce`)."""
+        return self.cell_dir(cell) / TRAJECTORY_FILE
+
     def scratch_dir(self, cell: Cell | str) -> Path:
         """Where `reproduce` keeps the cell's resumable run directory."""
         return self.root / SCRATCH / grid.file_name(_name(cell))
@@ -91,6 +97,10 @@ class Store:
         if not path.exists():
             return None
         return json.loads(path.read_text())
+
+    def read_trajectories(self, cell: Cell | str) -> dict[str, Any] | None:
+        path = self.trajectories_path(cell)
+        return json.loads(path.read_text()) if path.exists() else None
 
     def names(self) -> list[str]:
         """Names of the cells the store holds, sorted."""

@@ -41,8 +41,12 @@ def _tiny_store(root):
     # a cell of the real grid with fewer seeds than it asks for: partial
     car = dataclasses.replace(grid.cell("CarLTL0-v0/genz"), seeds=1, episodes=3,
                               suites=("zone/finite/ind",))
+    trajectory = {"formula": "F blue", "episodes": [{
+        "xy": [[0.0, 0.0], [0.5, 0.4], [1.0, 1.0]], "outcome": "success", "zone_xy": [[1.0, 1.0]],
+        "zone_color": ["blue"], "zone_radius": [0.4]}]}
     reproduce.run_cell(car, store, log=lambda line: None, train=fakes.train,
-                       evaluate=fakes.evaluate, load=fakes.load)
+                       evaluate=fakes.evaluate, load=fakes.load,
+                       trajectories=lambda cell, params: trajectory)
     return store
 
 
@@ -69,6 +73,8 @@ def test_report_renders_a_tiny_store_deterministically(tmp_path):
     assert ("| LetterLTL0-v0 \\| map-bank resets | 777M env-steps/s | H100 | 1,048,576 | "
             "2026-11-22 | `python benchmarks/env_throughput.py` |") in page
     assert "](figures/robot_dynamics_observation.png)" in page
+    assert "trajectories_CarLTL0-v0.png" in names  # the Car cell recorded episodes
+    assert "](figures/trajectories_CarLTL0-v0.png)" in page
 
 
 def test_report_command(tmp_path):

@@ -55,7 +55,7 @@ class Fakes:
 
     def run(self, store):
         return reproduce.run_cell(CELL, store, log=lambda line: None, train=self.train,
-                                  evaluate=self.evaluate, load=self.load)
+                                  evaluate=self.evaluate, load=self.load, trajectories=False)
 
 
 def test_a_cell_is_trained_evaluated_then_skipped(tmp_path):
