@@ -6,9 +6,9 @@ reached subgoal, -1 on entering an avoided zone, which ends the episode. The suc
 GenZ-LTL's: reached subgoals over subgoals that ended (reached, violated or timed out), here from
 Brax's evaluation episodes, each of which ends once.
 
-    python examples/brax_ppo_point.py                       # GPU defaults: 20M steps, 2048 envs
+    python examples/brax_ppo_point.py     # on a GPU 20M steps, 2,048 envs; on a CPU 32,768, 16
     python examples/brax_ppo_point.py --num-envs 4 --unroll-length 4 --num-timesteps 64 \\
-        --num-evals 2 --episode-length 8                    # a few iterations on a CPU
+        --num-evals 2 --episode-length 8  # a few iterations on a CPU (minutes, mostly compiling)
 
 Writes `<out>/brax_ppo_point.json`: per evaluation the env steps, wall seconds, success rate,
 violations and reward per episode, and the env-steps/s of training between evaluations.
@@ -27,6 +27,10 @@ from typing import Any
 
 import jax
 
+#: defaults by device kind: the GPU's scale, or minutes on a CPU
+DEFAULTS = {"gpu": {"num_timesteps": 20_000_000, "num_envs": 2048, "num_evals": 10},
+            "cpu": {"num_timesteps": 32_768, "num_envs": 16, "num_evals": 2}}
+
 
 def build_env(env_id: str = "PointLTL0-v0") -> Any:
     """The world joined with GenZ-LTL's continual subgoal source and reduced observation."""
@@ -42,19 +46,27 @@ def build_env(env_id: str = "PointLTL0-v0") -> Any:
 def parse(argv: Sequence[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="PointLTL0-v0")
-    parser.add_argument("--num-timesteps", type=int, default=20_000_000)
-    parser.add_argument("--num-envs", type=int, default=2048)
+    parser.add_argument("--num-timesteps", type=int, default=None,
+                        help="default 20M on an accelerator, 32,768 on a CPU")
+    parser.add_argument("--num-envs", type=int, default=None,
+                        help="default 2,048 on an accelerator, 16 on a CPU")
     parser.add_argument("--unroll-length", type=int, default=20)
     parser.add_argument("--batch-size", type=int, default=None, help="default: num_envs / 2")
     parser.add_argument("--num-minibatches", type=int, default=None,
                         help="default: 2 (one unroll of every env per update)")
     parser.add_argument("--num-updates-per-batch", type=int, default=4)
     parser.add_argument("--episode-length", type=int, default=1000)
-    parser.add_argument("--num-evals", type=int, default=10)
+    parser.add_argument("--num-evals", type=int, default=None,
+                        help="default 10 on an accelerator, 2 on a CPU")
     parser.add_argument("--num-eval-envs", type=int, default=None, help="default: num_envs")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default="runs/brax_ppo_point")
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    kind = "cpu" if jax.devices()[0].platform == "cpu" else "gpu"
+    for name, value in DEFAULTS[kind].items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
+    return args
 
 
 def main(argv: Sequence[str] | None = None) -> list[dict[str, float]]:

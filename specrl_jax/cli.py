@@ -100,10 +100,22 @@ def enable_compilation_cache() -> None:
     cache.enable_jax_cache()
 
 
+def announce_world_loading() -> None:
+    """Say on stderr that the world modules are loading, unless they are loaded: importing
+    MuJoCo MJX (with MuJoCo Warp where installed) takes 5-15 s on a CPU."""
+    if "specrl_jax.envs.zone" not in sys.modules:
+        print("loading the world modules (MuJoCo MJX: seconds) ...", file=sys.stderr, flush=True)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.run(args)
+    except KeyboardInterrupt as err:
+        update = getattr(err, "update", None)  # `runs.TrainingInterrupted`: a checkpoint there
+        where = "" if update is None else f" at update {update}; run the same command to resume"
+        print(f"specrl-jax {args.command}: interrupted{where}", file=sys.stderr)
+        return 130
     except (ValueError, TypeError) as err:
         print(f"specrl-jax {args.command}: error: {err}", file=sys.stderr)
         return 2
@@ -117,6 +129,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def list_envs_command(args: argparse.Namespace) -> int:
     from specrl_jax.envs.registry import describe, list_envs
 
+    announce_world_loading()
     for env_id in list_envs():
         print(f"{env_id:32s} {describe(env_id)}")
     return 0
@@ -154,15 +167,10 @@ def make_policy(name: str, env: Any) -> Any:
     "eval", "Evaluate a policy on specification suites and write JSON, Markdown and plots.",
     arg("--env", required=True, help="env ID, e.g. LetterLTL0-v0"),
     arg("--policy", required=True,
-        help=f"one of: {', '.join(POLICIES)}; a run directory of `specrl-jax train` (method, "
-             "world and settings from its config.json); a results-store cell such as "
-             "LetterLTL0-v0/genz; or package.module:factory, a function (world) -> policy or "
-             "Agent (README: 'Scoring your own policy')"),
+        help=f"one of: {', '.join(POLICIES)}; or trained parameters: a run directory of "
+             "`specrl-jax train`, or a results-store cell such as LetterLTL0-v0/genz"),
     arg("--suite", required=True, action="append", help="suite name (repeat for several)"),
-    arg("--seeds", type=positive_int, default=None,
-        help="number of seeds; seeds are 1..N (default 5; a run directory: all of its seeds)"),
-    arg("--seed", default="all",
-        help="a run directory: evaluate only this one of its seeds (1..N), or all (default)"),
+    arg("--seeds", type=positive_int, default=5, help="number of seeds; seeds are 1..N (default 5)"),
     arg("--episodes", type=positive_int, default=100, help="episodes per seed and spec (default 100)"),
     arg("--horizon", type=positive_int, default=None,
         help="episode horizon of every suite (default: the env's for finite suites, 10x for infinite)"),
@@ -172,30 +180,23 @@ def make_policy(name: str, env: Any) -> Any:
 )
 def eval_command(args: argparse.Namespace) -> int:
     enable_compilation_cache()
-    from specrl_jax.benchmark import agent as agents
     from specrl_jax.envs.registry import make
     from specrl_jax.eval import report
+    from specrl_jax.eval.suites import evaluate_suites
 
     env, params = make(args.env)
-    seed = None if args.seed == "all" else positive_int(args.seed)
-    loaded = agents.load(args.policy, args.env, seed=seed, world=env)
-    if isinstance(loaded, agents.TrainedRun):
-        loaded = agents.with_seed_count(loaded, args.seeds)
-        seeds = list(loaded.seeds)
-    elif seed is not None:
-        raise ValueError(f"--seed picks a seed of a trained run; {args.policy!r} is not one "
-                         "(give --seeds N)")
-    else:
-        seeds = list(range(1, (args.seeds or 5) + 1))
+    if args.policy not in POLICIES:  # trained parameters: a run directory or a store cell
+        return _eval_trained(args)
+    policy = make_policy(args.policy, env)
+    seeds = list(range(1, args.seeds + 1))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     log = (lambda line: None) if args.no_progress else (lambda line: print(line, file=sys.stderr))
-    results = agents.evaluate(loaded, args.env, args.suite, args.episodes, seeds, args.horizon, log)
+    results = evaluate_suites(policy, args.env, env, params, args.suite, args.episodes, seeds,
+                              horizon=args.horizon, label=args.policy, log=log)
 
     config = {key: value for key, value in vars(args).items() if key != "run"}
     config["seed_list"] = seeds
-    if isinstance(loaded, agents.TrainedRun):
-        config.update(method=loaded.method, trained=loaded.source)
     written = [report.write_json(out / "eval.json", results, config)]
     table = report.markdown_tables(results)
     (out / "eval.md").write_text(table)
@@ -203,12 +204,46 @@ def eval_command(args: argparse.Namespace) -> int:
     complexity = report.plot_complexity(results, out / "complexity.png")
     if complexity:
         written.append(complexity)
-    if (args.trajectories > 0 and _is_letter_world(env) and isinstance(loaded, agents.Agent)
-            and loaded.params is None):
-        written.append(_draw_trajectories(loaded.policy, env, params, args,
-                                          out / "trajectories.png"))
+    if args.trajectories > 0 and _is_letter_world(env):
+        written.append(_draw_trajectories(policy, env, params, args, out / "trajectories.png"))
     print(table)
     print("wrote " + ", ".join(str(p) for p in written))
+    return 0
+
+
+def _eval_trained(args: argparse.Namespace) -> int:
+    """`eval --policy RUN_DIR_OR_CELL`: the trained parameters on the given suites, with the
+    method, world options and method options the run was trained with; evaluation seed i runs
+    trained seed i (seed 1 for every evaluation seed when only one was kept)."""
+    import jax
+    import jax.numpy as jnp
+
+    from specrl_jax.baselines import experiment
+    from specrl_jax.benchmark.store import load_trained
+    from specrl_jax.eval import report
+
+    trained = load_trained(args.policy, env_id=args.env)
+    kept = jax.tree.leaves(trained.params)[0].shape[0]
+    if kept == 1:
+        params = jax.tree.map(lambda x: jnp.repeat(x, args.seeds, axis=0), trained.params)
+    elif args.seeds <= kept:
+        params = jax.tree.map(lambda x: x[:args.seeds], trained.params)
+    else:
+        raise ValueError(f"{trained.source} holds {kept} trained seeds; pass --seeds {kept} or fewer")
+    log = (lambda line: None) if args.no_progress else (lambda line: print(line, file=sys.stderr))
+    results = experiment.evaluate(trained.method, args.env, params, args.suite, args.episodes,
+                                  log=log, horizon=args.horizon,
+                                  env_options=trained.env_options or None,
+                                  method_options=trained.method_options or None)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    config = {key: value for key, value in vars(args).items() if key != "run"}
+    config.update(method=trained.method, trained=trained.source)
+    report.write_json(out / "eval.json", results, config)
+    table = report.markdown_tables(results)
+    (out / "eval.md").write_text(table)
+    print(table)
+    print(f"wrote {out / 'eval.json'}, {out / 'eval.md'}")
     return 0
 
 
@@ -261,8 +296,9 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
     arg("--num-envs", type=positive_int, default=None, help="envs stepped side by side per run"),
     arg("--num-steps", type=positive_int, default=None, help="rollout steps per env and update"),
     arg("--restart", action="store_true", help="discard a run already in --out instead of resuming it"),
-    arg("--map-bank", type=nonnegative_int, default=65536,
-        help="LetterWorld: maps in the fast-reset bank (0: exact resets)"),
+    arg("--map-bank", type=nonnegative_int, default=None,
+        help="LetterWorld: maps in the bank training resets draw from (default 65,536 on an "
+             "accelerator, 4,096 on a CPU: set-up in seconds; 0: exact resets)"),
     arg("--out", default=None, help="run directory (default runs/<method>); resumes if present"),
     arg("--eval-episodes", type=nonnegative_int, default=0, help="then evaluate on the world's paper suites"),
     arg("--env-option", type=env_option, action="append", default=[], metavar="KEY=VALUE",
@@ -282,6 +318,7 @@ def train_command(args: argparse.Namespace) -> int:
     from specrl_jax import families
 
     platform = jax.devices()[0].platform
+    announce_world_loading()
     world_family = experiment.family(args.env)
     total = args.total_steps or families.default_total_steps(platform)
     overrides = experiment.default_overrides(platform, total, world_family)
@@ -290,8 +327,9 @@ def train_command(args: argparse.Namespace) -> int:
     out = Path(args.out or f"runs/{args.method}")
     env_options = dict(args.env_option)
     method_options = dict(args.method_option)
+    map_bank = experiment.default_map_bank(platform) if args.map_bank is None else args.map_bank
     params, summary = experiment.train(args.method, args.env, out, overrides, args.seeds, args.seed,
-                                       map_bank=args.map_bank or None, restart=args.restart,
+                                       map_bank=map_bank or None, restart=args.restart,
                                        env_options=env_options, method_options=method_options)
     print(f"trained {args.seeds} x {summary['env_steps_per_seed']:,} steps, "
           f"{summary['env_steps_per_s']:,.0f} env-steps/s; run directory {out}")
@@ -343,10 +381,15 @@ def run_command(args: argparse.Namespace) -> int:
         overrides = experiment.default_overrides("gpu" if gpu else "cpu", total)
         if not gpu:  # a short budget: fewer epochs per update keeps it to minutes on two cores
             overrides.update(num_envs=32, num_steps=64, update_epochs=10)
-        print(f"training GenZ-LTL on LetterLTL0-v0: {seeds} x {total:,} steps into {out}",
+        config = experiment.check_settings("genz", "LetterLTL0-v0", overrides)
+        steps = experiment.trained_steps(config)
+        rounded = (f" ({total:,} rounded down to whole updates of {config.batch_size:,})"
+                   if steps != total else "")
+        print(f"training GenZ-LTL on LetterLTL0-v0: {seeds} x {steps:,} steps{rounded} into {out}",
               flush=True)
         params, summary = experiment.train("genz", "LetterLTL0-v0", out, overrides, seeds,
-                                           map_bank=65536 if gpu else 4096, restart=args.restart)
+                                           map_bank=experiment.default_map_bank("gpu" if gpu else "cpu"),
+                                           restart=args.restart)
         print(f"trained GenZ-LTL: {seeds} x {summary['env_steps_per_seed']:,} steps at "
               f"{summary['env_steps_per_s']:,.0f} env-steps/s")
     suites = ("letter/finite/ind", "letter/finite/ood")
@@ -460,45 +503,6 @@ def report_command(args: argparse.Namespace) -> int:
 
     written = report.render(store=args.store, out=args.out, figures=args.figures)
     print("wrote " + ", ".join(str(p) for p in written))
-    return 0
-
-
-
-@command(
-    "bench",
-    "Score a policy on every paper suite of the selected worlds (5 seeds x 100 episodes) and "
-    "write a report directory: JSON and CSV of every metric, the paper's tables with the five "
-    "baselines beside it, a summary line per world, a plot, and the package's and suites' versions.",
-    arg("--policy", required=True,
-        help="a run directory of `specrl-jax train`, a results-store cell, random, oracle, or "
-             "package.module:factory (README: 'Scoring your own policy')"),
-    arg("--worlds", default=None,
-        help="comma-separated: letter, zone, arm, multi_agent, or env IDs (default: a run's own "
-             "world; else the worlds the policy declares, else all)"),
-    arg("--suite", action="append", default=None, help="only this suite (repeatable)"),
-    arg("--seeds", type=positive_int, default=5, help="seeds 1..N (default 5)"),
-    arg("--episodes", type=positive_int, default=100, help="episodes per seed and spec (default 100)"),
-    arg("--horizon", type=positive_int, default=None,
-        help="episode length of every suite (default: each suite's own)"),
-    arg("--backend", default="jax", choices=("jax", "gymnasium"),
-        help="jax (compiled) or gymnasium (--policy module:factory whose factory(world) gives "
-             "a numpy callable (obs, task) -> actions, run through the Gymnasium vector env)"),
-    arg("--name", default=None, help="the policy's name in the tables"),
-    arg("--out", default="bench", help="report directory (default bench/)"),
-    arg("--no-progress", action="store_true", help="no progress lines"),
-)
-def bench_command(args: argparse.Namespace) -> int:
-    enable_compilation_cache()
-    from specrl_jax.benchmark import bench
-
-    worlds = None if args.worlds is None else [w.strip() for w in args.worlds.split(",") if w.strip()]
-    log = (lambda line: None) if args.no_progress else (lambda line: print(line, file=sys.stderr))
-    report = bench.score(args.policy, worlds, args.suite, args.seeds, args.episodes,
-                         backend=args.backend, horizon=args.horizon, out=args.out,
-                         name=args.name, log=log)
-    for line in report.lines():
-        print(line)
-    print(f"wrote {report.out}/: results.json, metrics.csv, tables.md, bench.png")
     return 0
 
 

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -22,11 +24,19 @@ from specrl_jax import families, specs
 from specrl_jax.baselines import runs
 from specrl_jax.baselines.params_io import load_params as read_params
 from specrl_jax.baselines.params_io import load_params_into, save_params
-from specrl_jax.baselines.ppo import env_mesh, make_train
+from specrl_jax.baselines.ppo import PPOConfig, env_mesh, make_train
 from specrl_jax.baselines.spec import get_method
 from specrl_jax.envs.registry import make
 
 SUCCESS_LEVELS = (0.5, 0.8, 0.9, 0.95, 0.98)
+#: maps in a LetterWorld training's reset bank: set-up takes seconds on a CPU (a bank of 65,536
+#: takes minutes there, a second on an accelerator)
+DEFAULT_MAP_BANK = {"cpu": 4096, "gpu": 65536}
+
+
+def default_map_bank(device_kind: str) -> int:
+    """Maps in the training reset bank on "cpu" or any accelerator platform name."""
+    return DEFAULT_MAP_BANK["cpu" if device_kind == "cpu" else "gpu"]
 
 
 def family(env_id: str) -> str:
@@ -66,20 +76,64 @@ def default_overrides(device_kind: str, total_steps: int | None = None,
     return shape
 
 
+#: method options naming a file (a world family's name instead picks the package's own)
+FILE_OPTIONS = ("encoder",)
+
+
+def check_settings(method: str, env_id: str, ppo_overrides: dict[str, Any],
+                   method_options: dict[str, Any] | None = None) -> PPOConfig:
+    """The cheap checks of a training's settings, made before any expensive step (map bank,
+    method tables, compilation): a trainable env ID, options the method takes (files that
+    exist), a valid PPO shape. Returns the PPOConfig."""
+    spec = get_method(method)
+    world_family = family(env_id)
+    spec.check_options(method_options)
+    for name in FILE_OPTIONS:
+        value = (method_options or {}).get(name)
+        if (isinstance(value, (str, os.PathLike)) and str(value) not in families.list_families()
+                and not Path(value).is_file()):
+            raise ValueError(f"method option {name}={str(value)!r}: no such file (a path, or a "
+                             f"world family's name for the package's {name})")
+    return spec.ppo_config(world_family, **ppo_overrides)
+
+
+def with_method(method: str, world: Any, params: Any, map_bank: int | None, key: jax.Array,
+                method_options: dict[str, Any] | None = None) -> tuple[Any, Any]:
+    """(train params, method object) on a built world: the expensive part of `build`."""
+    if map_bank and families.of(world).map_bank:
+        # wait for the bank here: dispatched asynchronously, it would finish inside training
+        params = jax.block_until_ready(world.with_map_bank(key, params, num_maps=map_bank))
+    method_obj = get_method(method).make_method(world, params, families.of(world).name,
+                                                **(method_options or {}))
+    return params, method_obj
+
+
 def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int | None, key: jax.Array,
           env_options: dict[str, Any] | None = None, method_options: dict[str, Any] | None = None):
     """(world, train params, method object, PPOConfig) for `method` on `env_id` (built with
     `make(env_id, **env_options)`, the method with `make_method(..., **method_options)`);
     `map_bank` (LetterWorld) draws training resets from a bank of that many exactly sampled maps."""
-    spec = get_method(method)
-    spec.check_options(method_options)  # before the map bank's seconds
+    config = check_settings(method, env_id, ppo_overrides, method_options)
     world, params = make(env_id, **(env_options or {}))
-    world_family = families.of(world).name
-    if map_bank and families.of(world).map_bank:
-        # wait for the bank here: dispatched asynchronously, it would finish inside training
-        params = jax.block_until_ready(world.with_map_bank(key, params, num_maps=map_bank))
-    method_obj = spec.make_method(world, params, world_family, **(method_options or {}))
-    return world, params, method_obj, spec.ppo_config(world_family, **ppo_overrides)
+    params, method_obj = with_method(method, world, params, map_bank, key, method_options)
+    return world, params, method_obj, config
+
+
+def trained_steps(config: PPOConfig) -> int:
+    """Env steps per seed a training of `config` takes: whole updates of `batch_size`."""
+    return config.num_updates * config.batch_size
+
+
+def warn_slow_camera(world: Any, platform: str) -> None:
+    """A warning when a camera world renders large frames on a CPU (each step renders one per
+    env: training takes hours)."""
+    config = getattr(world, "config", None)
+    size = getattr(config, "image_size", None)
+    size = (size, size) if isinstance(size, int) else size
+    if platform == "cpu" and getattr(config, "vision", False) and size and size[0] * size[1] > 128 * 128:
+        warnings.warn(f"training a camera world at {size[0]} x {size[1]} pixels on a CPU renders "
+                      "a frame per env and step: expect hours; pass --env-option image_size=64 "
+                      "(make(..., image_size=64)) for a CPU-sized camera", stacklevel=2)
 
 
 def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str, Any], num_seeds: int = 1,
@@ -98,26 +152,34 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     key_bank, key_train = jax.random.split(jax.random.key(seed))
     start = time.perf_counter()
     spec = get_method(method)
-    if map_bank and families.get(family(env_id)).map_bank:
+    # every setting is checked before the expensive steps (map bank, method tables, compilation)
+    config = check_settings(method, env_id, ppo_overrides, method_options)
+    mesh = env_mesh(list(devices) if devices is not None else None)
+    make_train(config, None, mesh)  # checks the env batch against the devices
+    world, params = make(env_id, **(env_options or {}))
+    # Zone worlds: the backend "auto" chose, so that a run does not resume on another
+    physics = getattr(getattr(world, "physics", None), "backend", None)
+    extra_config = {"method": method, "env": env_id, "map_bank": map_bank, "seed": seed,
+                    **({"env_options": dict(env_options)} if env_options else {}),
+                    **({"physics": physics} if physics else {}),
+                    **({"method_options": dict(method_options)} if method_options else {})}
+    runs.check_run_dir(run_dir, runs.run_config(config, num_seeds, extra_config), restart)
+    warn_slow_camera(world, mesh.devices.flat[0].platform)
+    if map_bank and families.of(world).map_bank:
         log(f"building a bank of {map_bank:,} exactly sampled maps for training resets ...")
-    world, _params, method_obj, config = build(method, env_id, ppo_overrides, map_bank, key_bank,
-                                               env_options, method_options)
+    params, method_obj = with_method(method, world, params, map_bank, key_bank, method_options)
     if spec.prepare_training is not None:  # a phase before PPO (GCRL-LTL's direction primitives)
         method_obj = spec.prepare_training(method_obj, key_train, config, log)
     setup = time.perf_counter() - start
-    log(f"set up {env_id} in {setup:.1f}s; compiling the training step (the first chunk includes it)")
-    # Zone worlds: the backend "auto" chose, so that a run does not resume on another
-    physics = getattr(getattr(world, "physics", None), "backend", None)
-    mesh = env_mesh(list(devices) if devices is not None else None)
+    log(f"set up {env_id} in {setup:.1f}s; training {num_seeds} x {trained_steps(config):,} env "
+        f"steps ({config.num_updates:,} updates of {config.batch_size:,}); compiling "
+        f"{spec.title}'s training step for {config.num_envs} envs x {config.num_steps} steps "
+        "(seconds to minutes; the first update includes it)")
     trainer = make_train(config, method_obj, mesh)
     start = time.perf_counter()
     runner = runs.train_in_run_dir(
-        trainer, key_train, run_dir, chunk_updates, num_seeds,
-        extra_config={"method": method, "env": env_id, "map_bank": map_bank, "seed": seed,
-                      **({"env_options": dict(env_options)} if env_options else {}),
-                      **({"physics": physics} if physics else {}),
-                      **({"method_options": dict(method_options)} if method_options else {})},
-        summarise=spec.summarise, log=log, max_wall_s=max_wall_s, restart=restart,
+        trainer, key_train, run_dir, chunk_updates, num_seeds, extra_config=extra_config,
+        summarise=spec.summarise, log=log, max_wall_s=max_wall_s, restart=restart, first_chunk=1,
     )
     wall = time.perf_counter() - start
     rows = runs.read_metrics(run_dir)
@@ -175,10 +237,8 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
              log: Callable[[str], None] = print, deterministic: bool | None = None,
              label: str | None = None, horizon: int | None = None,
              env_options: dict[str, Any] | None = None, devices: Sequence[Any] | None = None,
-             method_options: dict[str, Any] | None = None, seeds: Sequence[int] | None = None,
-             **policy_options: Any) -> list:
-    """Evaluate every trained seed (leading axis of `params`, evaluation seed i + 1 for entry i,
-    or `seeds[i]`) on `suites`
+             method_options: dict[str, Any] | None = None, **policy_options: Any) -> list:
+    """Evaluate every trained seed (leading axis of `params`, seed i + 1 for entry i) on `suites`
     (`eval.suites.evaluate_suites`: infinite suites over 10 finite horizons unless `horizon`;
     episodes sharded over `devices`, default every local device).
     Returns `SuiteResult`s with one row per trained seed."""
@@ -194,8 +254,7 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
     policy = make_policy(method, world, method_obj, deterministic, None, **policy_options)
     num_seeds = jax.tree.leaves(params)[0].shape[0]
     return evaluate_suites(
-        policy, env_id, world, env_params, suites, episodes,
-        seeds=range(1, num_seeds + 1) if seeds is None else seeds,
+        policy, env_id, world, env_params, suites, episodes, seeds=range(1, num_seeds + 1),
         policy_params=params, params_per_seed=True, horizon=horizon,
         label=label or spec.title, log=log, devices=devices,
     )

@@ -26,6 +26,15 @@ from specrl_jax.baselines.ppo.train import RunnerState, Trainer
 CHECKPOINT = "checkpoint.msgpack"
 
 
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C during `train_in_run_dir`: the run directory holds a checkpoint at `update` (0:
+    none yet), from which the same call resumes exactly."""
+
+    def __init__(self, run_dir: Path, update: int):
+        super().__init__(f"interrupted at update {update}; run the same command to resume")
+        self.run_dir, self.update = run_dir, update
+
+
 def save_checkpoint(path: str | os.PathLike, runner: RunnerState) -> None:
     """Write `runner` atomically (typed PRNG keys are stored as raw key data)."""
     save_params(path, runner.replace(key=jax.random.key_data(runner.key)))
@@ -97,15 +106,20 @@ def init_seeds(trainer: Trainer, key: jax.Array, num_seeds: int) -> RunnerState:
 
 
 def train_chunks(trainer: Trainer, runner: RunnerState, num_seeds: int, chunk_updates: int,
-                 total: int) -> Iterator[tuple[RunnerState, dict[str, Any], int, int]]:
+                 total: int, first_chunk: int | None = None
+                 ) -> Iterator[tuple[RunnerState, dict[str, Any], int, int]]:
     """The one training driver: from `runner`'s update (seed axis first) to `total`, in chunks of
-    at most `chunk_updates` updates. Yields `(runner, metrics [seeds, chunk_updates] on the host,
-    updates in this chunk, updates done)` after each chunk, so callers log, checkpoint or stop."""
-    # One compiled chunk for every chunk: a shorter last chunk runs the same scan, partly idle.
+    at most `chunk_updates` updates (the first of at most `first_chunk`, e.g. 1 to report the
+    update that included compilation at once). Yields `(runner, metrics [seeds, chunk_updates]
+    on the host, updates in this chunk, updates done)` after each chunk, so callers log,
+    checkpoint or stop."""
+    # One compiled chunk for every chunk: a shorter chunk runs the same scan, partly idle.
     updates = jax.jit(seed_batched(trainer, num_seeds), static_argnums=1, donate_argnums=0)
     done = int(runner.update[0])
+    size = min(first_chunk or chunk_updates, chunk_updates)
     while done < total:
-        n = min(chunk_updates, total - done)
+        n = min(size, total - done)
+        size = chunk_updates
         runner, metrics = updates(runner, chunk_updates, jnp.int32(n))
         done += n
         yield runner, jax.device_get(metrics), n, done
@@ -123,31 +137,28 @@ def train_in_run_dir(
     max_updates: int | None = None,
     max_wall_s: float | None = None,
     restart: bool = False,
+    first_chunk: int | None = None,
 ) -> RunnerState:
     """Train `num_seeds` runs of `trainer` side by side (`vmap`) in chunks of `chunk_updates`,
     resuming from `run_dir` when it holds a checkpoint.
 
     `summarise` derives extra scalars per update and seed (e.g. rates); `max_updates` and
-    `max_wall_s` (this session's seconds, checked after each chunk) stop early, resumable. Rows'
+    `max_wall_s` (this session's seconds, checked after each chunk) stop early, resumable;
+    `first_chunk` bounds the session's first chunk (1: the update that includes compilation is
+    reported as soon as it ends). Ctrl-C raises `TrainingInterrupted` naming the checkpointed
+    update. Rows'
     `wall_s` is training time summed over sessions (a resumed run continues the clock of the
     checkpoint's update), so rates and times to a level stay on one clock. A run directory is
     resumed only when its `config.json` equals this run's settings (else `ValueError` names the
     differing settings); `restart` discards what it holds. Returns the final runner state, with a
     leading seed axis `[num_seeds]`.
     """
-    run_dir = Path(run_dir)
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise ValueError(f"cannot create the run directory {run_dir}: {err.strerror}") from err
     cfg = trainer.config
-    config = json.loads(json.dumps(
-        {"ppo": dataclasses.asdict(cfg), "num_seeds": num_seeds, **(extra_config or {})},
-        default=str))
+    config = run_config(cfg, num_seeds, extra_config)
+    run_dir = check_run_dir(run_dir, config, restart)
     if restart:
         for name in (CHECKPOINT, "metrics.jsonl", "config.json", "curve.png"):
             (run_dir / name).unlink(missing_ok=True)
-    check_resumable(run_dir, config)
     try:
         (run_dir / "config.json").write_text(json.dumps(config, indent=2))
     except OSError as err:
@@ -161,28 +172,92 @@ def train_in_run_dir(
             f"after {wall_before:.1f}s of training")
     total = cfg.num_updates if max_updates is None else min(cfg.num_updates, max_updates)
     start_wall = time.perf_counter()
-    done_at_start = int(runner.update[0])
-    with open(run_dir / "metrics.jsonl", "a") as out:
-        for runner, metrics, n, done in train_chunks(trainer, runner, num_seeds, chunk_updates, total):
-            rows = _rows(metrics, n, summarise)
-            elapsed = time.perf_counter() - start_wall
-            for i, row in enumerate(rows):
-                update = done - n + i + 1
-                row.update(update=update, env_steps=update * cfg.batch_size, wall_s=wall_before + elapsed)
-                out.write(json.dumps(row) + "\n")
-            out.flush()
-            rate = (done - done_at_start) * cfg.batch_size * num_seeds / elapsed
-            shown = {k: v for k, v in rows[-1].items() if isinstance(v, float) and k not in ("env_steps", "wall_s")}
-            log(
-                f"update {done}/{total}  env steps {done * cfg.batch_size:,} x {num_seeds} seeds  "
-                f"{rate:,.0f} steps/s  " + "  ".join(f"{k} {v:.3g}" for k, v in shown.items())
-            )
-            save_checkpoint(run_dir / CHECKPOINT, runner)
-            if max_wall_s is not None and elapsed > max_wall_s:
-                log(f"stopping at update {done}: wall-clock budget of {max_wall_s:.0f}s spent")
-                break
+    done_at_start = checkpointed = int(runner.update[0])
+    _drop_rows_after(run_dir, done_at_start)  # rows written before an interrupted checkpoint
+    try:
+        with open(run_dir / "metrics.jsonl", "a") as out:
+            chunks = train_chunks(trainer, runner, num_seeds, chunk_updates, total, first_chunk)
+            for runner, metrics, n, done in chunks:
+                elapsed = _log_chunk(out, metrics, n, done, done_at_start, total, cfg, num_seeds,
+                                     wall_before, time.perf_counter() - start_wall, summarise, log)
+                save_checkpoint(run_dir / CHECKPOINT, runner)
+                checkpointed = done
+                if max_wall_s is not None and elapsed > max_wall_s:
+                    log(f"stopping at update {done}: wall-clock budget of {max_wall_s:.0f}s spent")
+                    break
+    except KeyboardInterrupt as err:
+        raise TrainingInterrupted(run_dir, checkpointed) from err
     plot_curve(run_dir)
     return runner
+
+
+def _log_chunk(out: Any, metrics: dict[str, Any], n: int, done: int, done_at_start: int,
+               total: int, cfg: Any, num_seeds: int, wall_before: float, elapsed: float,
+               summarise: Callable, log: Callable[[str], None]) -> float:
+    """Append a chunk's rows to `metrics.jsonl` and log a progress line; returns `elapsed`."""
+    rows = _rows(metrics, n, summarise)
+    for i, row in enumerate(rows):
+        update = done - n + i + 1
+        row.update(update=update, env_steps=update * cfg.batch_size, wall_s=wall_before + elapsed)
+        out.write(json.dumps(row) + "\n")
+    out.flush()
+    rate = (done - done_at_start) * cfg.batch_size * num_seeds / elapsed
+    shown = {k: v for k, v in rows[-1].items() if isinstance(v, float) and k not in ("env_steps", "wall_s")}
+    first = f"  ({elapsed:.0f}s, compilation included)" if done - n == done_at_start else ""
+    log(
+        f"update {done}/{total}  env steps {done * cfg.batch_size:,} x {num_seeds} seeds  "
+        f"{rate:,.0f} steps/s  " + "  ".join(f"{k} {v:.3g}" for k, v in shown.items()) + first
+    )
+    return elapsed
+
+
+def run_config(cfg: Any, num_seeds: int, extra_config: dict[str, Any] | None = None
+               ) -> dict[str, Any]:
+    """What a run directory's `config.json` holds for these settings (as JSON reads it back)."""
+    return json.loads(json.dumps(
+        {"ppo": dataclasses.asdict(cfg), "num_seeds": num_seeds, **(extra_config or {})},
+        default=str))
+
+
+def check_run_dir(run_dir: str | os.PathLike, config: dict[str, Any], restart: bool = False
+                  ) -> Path:
+    """Create `run_dir` and check, before any expensive step, that it is writable and (unless
+    `restart`) fresh or holding a run of exactly `config`'s settings (`check_resumable`);
+    writes nothing in it. Returns it as a `Path`.
+
+    Raises:
+        ValueError: saying which, and what to do.
+    """
+    run_dir = Path(run_dir)
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise ValueError(f"cannot create the run directory {run_dir}: {err.strerror}") from err
+    if not os.access(run_dir, os.W_OK | os.X_OK):
+        raise ValueError(f"cannot write to the run directory {run_dir}: Permission denied")
+    if not restart:
+        check_resumable(run_dir, config)
+    return run_dir
+
+
+def _drop_rows_after(run_dir: Path, update: int) -> None:
+    """Keep `metrics.jsonl`'s rows up to `update` (the checkpoint's): an interrupted session may
+    have written rows of a chunk whose checkpoint it did not."""
+    path = run_dir / "metrics.jsonl"
+    if not path.exists():
+        return
+    lines = [line for line in path.read_text().splitlines() if line.strip()]
+    kept = [line for line in lines if _row_update(line) <= update]
+    if len(kept) < len(lines):
+        path.write_text("".join(line + "\n" for line in kept))
+
+
+def _row_update(line: str) -> float:
+    """A metrics line's update; infinity for a line cut short by an interruption."""
+    try:
+        return json.loads(line)["update"]
+    except (ValueError, KeyError, TypeError):
+        return float("inf")
 
 
 def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
@@ -200,7 +275,11 @@ def check_resumable(run_dir: Path, config: dict[str, Any]) -> None:
     has_run = (run_dir / CHECKPOINT).exists() or (run_dir / "metrics.jsonl").exists()
     if not has_run:
         return
-    stored = json.loads(stored_path.read_text()) if stored_path.exists() else {}
+    try:
+        stored = json.loads(stored_path.read_text()) if stored_path.exists() else {}
+    except (OSError, ValueError) as err:
+        raise ValueError(f"{stored_path} cannot be read ({err}); pass --restart to discard the "
+                         f"run in {run_dir}, or use another --out") from err
     old, new = _flat(stored), _flat(config)
     differing = sorted(k for k in old.keys() | new.keys() if old.get(k) != new.get(k))
     if differing:

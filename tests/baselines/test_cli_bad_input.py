@@ -2,6 +2,7 @@
 resuming a run directory only with its own settings, damaged checkpoints, unwritable outputs."""
 
 import json
+import warnings
 
 import jax
 import pytest
@@ -117,3 +118,107 @@ def test_method_options_reach_training_and_evaluation(monkeypatch, tmp_path):
                      "freeze_encoder=True", "--method-option", "pretrain_steps=1000"]) == 0
     expected = {"encoder": "runs/enc.msgpack", "freeze_encoder": True, "pretrain_steps": 1000}
     assert seen == {"train": expected, "evaluate": expected}
+
+
+@pytest.fixture
+def no_map_bank(monkeypatch):
+    """LetterWorld's map bank (the expensive set-up) fails the test if it is built."""
+    from specrl_jax.envs.letter import LetterWorld
+
+    def built(*args, **kwargs):
+        raise AssertionError("the map bank was built before the bad argument was reported")
+
+    monkeypatch.setattr(LetterWorld, "with_map_bank", built)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--num-envs", "7", "--num-steps", "3"], "num_envs * num_steps = 21 is not divisible by"),
+    (["--out", "FILE"], "cannot create the run directory"),
+    (["--method", "ltl2action", "--method-option", "encoder=/nonexistent/enc.msgpack"],
+     "method option encoder='/nonexistent/enc.msgpack': no such file"),
+    (["--out", "DAMAGED"], "config.json cannot be read (Expecting value"),
+])
+def test_bad_training_arguments_fail_before_the_map_bank(argv, message, tmp_path, capsys,
+                                                         no_map_bank):
+    (tmp_path / "file").write_text("")
+    damaged = tmp_path / "damaged"  # a run directory whose config.json was cut short
+    damaged.mkdir()
+    (damaged / "metrics.jsonl").write_text("")
+    (damaged / "config.json").write_text('{"ppo": ')
+    paths = {"FILE": str(tmp_path / "file"), "DAMAGED": str(damaged)}
+    base = ["train", "--method", "genz", "--total-steps", "64", "--out", str(tmp_path / "run")]
+    assert cli.main(base + [paths.get(a, a) for a in argv]) == 2
+    err = capsys.readouterr().err
+    assert message in err
+    if "DAMAGED" in argv:
+        assert f"{damaged / 'config.json'} cannot be read" in err and "--restart" in err
+
+
+def test_ctrl_c_names_the_checkpointed_update_and_the_same_call_resumes(tmp_path, monkeypatch):
+    # Ctrl-C after the second chunk's rows are written, before its checkpoint
+    real, saves = runs.save_checkpoint, []
+
+    def interrupted_on_the_second(path, runner):
+        saves.append(path)
+        if len(saves) == 2:
+            raise KeyboardInterrupt
+        real(path, runner)
+
+    lines = []
+    options = {"log": lines.append, "chunk_updates": 2, "first_chunk": 1}
+    monkeypatch.setattr(runs, "save_checkpoint", interrupted_on_the_second)
+    with pytest.raises(runs.TrainingInterrupted,
+                       match="interrupted at update 1; run the same command to resume"):
+        runs.train_in_run_dir(_trainer(), jax.random.key(0), tmp_path, **options)
+    assert lines[0].startswith("update 1/3 ") and "compilation included" in lines[0]
+    assert lines[1].startswith("update 3/3 ") and "compilation" not in lines[1]
+    monkeypatch.setattr(runs, "save_checkpoint", real)
+    runner = runs.train_in_run_dir(_trainer(), jax.random.key(0), tmp_path, **options)
+    assert "resumed at update 1" in lines[2] and int(runner.update[0]) == 3
+    assert [r["update"] for r in runs.read_metrics(tmp_path)] == [1, 2, 3]
+
+
+def test_ctrl_c_at_the_command_line_is_one_line(monkeypatch, tmp_path, capsys):
+    from specrl_jax.baselines import experiment
+
+    def interrupted(*args, **kwargs):
+        raise runs.TrainingInterrupted(tmp_path, 7)
+
+    monkeypatch.setattr(experiment, "train", interrupted)
+    assert cli.main(["train", "--method", "genz", "--out", str(tmp_path)]) == 130
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        "specrl-jax train: interrupted at update 7; run the same command to resume")
+
+
+def test_the_cpu_announces_the_steps_it_trains_and_a_small_map_bank(monkeypatch, tmp_path, capsys):
+    from specrl_jax.baselines import experiment
+
+    seen = []
+
+    def stop(method, env_id, out, overrides, seeds, seed=0, **kwargs):
+        seen.append(kwargs["map_bank"])
+        raise runs.TrainingInterrupted(out, 0)
+
+    monkeypatch.setattr(experiment, "train", stop)
+    assert cli.main(["run", "--out", str(tmp_path)]) == 130
+    assert ("training GenZ-LTL on LetterLTL0-v0: 1 x 198,656 steps (200,000 rounded down to whole "
+            "updates of 2,048)") in capsys.readouterr().out
+    assert cli.main(["train", "--method", "genz", "--out", str(tmp_path / "t")]) == 130
+    assert seen == [4096, 4096]
+
+
+def test_a_camera_world_at_256_pixels_on_a_cpu_is_warned_about():
+    from types import SimpleNamespace
+
+    from specrl_jax.baselines import experiment
+    from specrl_jax.envs.zone.config import level_config
+
+    with pytest.warns(UserWarning, match="256 x 256 pixels on a CPU.*--env-option image_size=64"):
+        experiment.warn_slow_camera(SimpleNamespace(config=level_config("Point", 0, False, False,
+                                                                        vision=True)), "cpu")
+    small = level_config("Point", 0, False, False, vision=True, image_size=64)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        experiment.warn_slow_camera(SimpleNamespace(config=small), "cpu")
+        experiment.warn_slow_camera(SimpleNamespace(config=level_config("Point", 0, False, False,
+                                                                        vision=True)), "gpu")
