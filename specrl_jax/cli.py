@@ -167,10 +167,15 @@ def make_policy(name: str, env: Any) -> Any:
     "eval", "Evaluate a policy on specification suites and write JSON, Markdown and plots.",
     arg("--env", required=True, help="env ID, e.g. LetterLTL0-v0"),
     arg("--policy", required=True,
-        help=f"one of: {', '.join(POLICIES)}; or trained parameters: a run directory of "
-             "`specrl-jax train`, or a results-store cell such as LetterLTL0-v0/genz"),
+        help=f"one of: {', '.join(POLICIES)}; a run directory of `specrl-jax train` (method, "
+             "world and settings from its config.json); a results-store cell such as "
+             "LetterLTL0-v0/genz; or package.module:factory, a function (world) -> policy or "
+             "Agent (README: 'Scoring your own policy')"),
     arg("--suite", required=True, action="append", help="suite name (repeat for several)"),
-    arg("--seeds", type=positive_int, default=5, help="number of seeds; seeds are 1..N (default 5)"),
+    arg("--seeds", type=positive_int, default=None,
+        help="number of seeds; seeds are 1..N (default 5; a run directory: all of its seeds)"),
+    arg("--seed", default="all",
+        help="a run directory: evaluate only this one of its seeds (1..N), or all (default)"),
     arg("--episodes", type=positive_int, default=100, help="episodes per seed and spec (default 100)"),
     arg("--horizon", type=positive_int, default=None,
         help="episode horizon of every suite (default: the env's for finite suites, 10x for infinite)"),
@@ -180,23 +185,30 @@ def make_policy(name: str, env: Any) -> Any:
 )
 def eval_command(args: argparse.Namespace) -> int:
     enable_compilation_cache()
+    from specrl_jax.benchmark import agent as agents
     from specrl_jax.envs.registry import make
     from specrl_jax.eval import report
-    from specrl_jax.eval.suites import evaluate_suites
 
     env, params = make(args.env)
-    if args.policy not in POLICIES:  # trained parameters: a run directory or a store cell
-        return _eval_trained(args)
-    policy = make_policy(args.policy, env)
-    seeds = list(range(1, args.seeds + 1))
+    seed = None if args.seed == "all" else positive_int(args.seed)
+    loaded = agents.load(args.policy, args.env, seed=seed, world=env)
+    if isinstance(loaded, agents.TrainedRun):
+        loaded = agents.with_seed_count(loaded, args.seeds)
+        seeds = list(loaded.seeds)
+    elif seed is not None:
+        raise ValueError(f"--seed picks a seed of a trained run; {args.policy!r} is not one "
+                         "(give --seeds N)")
+    else:
+        seeds = list(range(1, (args.seeds or 5) + 1))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     log = (lambda line: None) if args.no_progress else (lambda line: print(line, file=sys.stderr))
-    results = evaluate_suites(policy, args.env, env, params, args.suite, args.episodes, seeds,
-                              horizon=args.horizon, label=args.policy, log=log)
+    results = agents.evaluate(loaded, args.env, args.suite, args.episodes, seeds, args.horizon, log)
 
     config = {key: value for key, value in vars(args).items() if key != "run"}
     config["seed_list"] = seeds
+    if isinstance(loaded, agents.TrainedRun):
+        config.update(method=loaded.method, trained=loaded.source)
     written = [report.write_json(out / "eval.json", results, config)]
     table = report.markdown_tables(results)
     (out / "eval.md").write_text(table)
@@ -204,46 +216,12 @@ def eval_command(args: argparse.Namespace) -> int:
     complexity = report.plot_complexity(results, out / "complexity.png")
     if complexity:
         written.append(complexity)
-    if args.trajectories > 0 and _is_letter_world(env):
-        written.append(_draw_trajectories(policy, env, params, args, out / "trajectories.png"))
+    if (args.trajectories > 0 and _is_letter_world(env) and isinstance(loaded, agents.Agent)
+            and loaded.params is None):
+        written.append(_draw_trajectories(loaded.policy, env, params, args,
+                                          out / "trajectories.png"))
     print(table)
     print("wrote " + ", ".join(str(p) for p in written))
-    return 0
-
-
-def _eval_trained(args: argparse.Namespace) -> int:
-    """`eval --policy RUN_DIR_OR_CELL`: the trained parameters on the given suites, with the
-    method, world options and method options the run was trained with; evaluation seed i runs
-    trained seed i (seed 1 for every evaluation seed when only one was kept)."""
-    import jax
-    import jax.numpy as jnp
-
-    from specrl_jax.baselines import experiment
-    from specrl_jax.benchmark.store import load_trained
-    from specrl_jax.eval import report
-
-    trained = load_trained(args.policy, env_id=args.env)
-    kept = jax.tree.leaves(trained.params)[0].shape[0]
-    if kept == 1:
-        params = jax.tree.map(lambda x: jnp.repeat(x, args.seeds, axis=0), trained.params)
-    elif args.seeds <= kept:
-        params = jax.tree.map(lambda x: x[:args.seeds], trained.params)
-    else:
-        raise ValueError(f"{trained.source} holds {kept} trained seeds; pass --seeds {kept} or fewer")
-    log = (lambda line: None) if args.no_progress else (lambda line: print(line, file=sys.stderr))
-    results = experiment.evaluate(trained.method, args.env, params, args.suite, args.episodes,
-                                  log=log, horizon=args.horizon,
-                                  env_options=trained.env_options or None,
-                                  method_options=trained.method_options or None)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    config = {key: value for key, value in vars(args).items() if key != "run"}
-    config.update(method=trained.method, trained=trained.source)
-    report.write_json(out / "eval.json", results, config)
-    table = report.markdown_tables(results)
-    (out / "eval.md").write_text(table)
-    print(table)
-    print(f"wrote {out / 'eval.json'}, {out / 'eval.md'}")
     return 0
 
 
@@ -503,6 +481,45 @@ def report_command(args: argparse.Namespace) -> int:
 
     written = report.render(store=args.store, out=args.out, figures=args.figures)
     print("wrote " + ", ".join(str(p) for p in written))
+    return 0
+
+
+
+@command(
+    "bench",
+    "Score a policy on every paper suite of the selected worlds (5 seeds x 100 episodes) and "
+    "write a report directory: JSON and CSV of every metric, the paper's tables with the five "
+    "baselines beside it, a summary line per world, a plot, and the package's and suites' versions.",
+    arg("--policy", required=True,
+        help="a run directory of `specrl-jax train`, a results-store cell, random, oracle, or "
+             "package.module:factory (README: 'Scoring your own policy')"),
+    arg("--worlds", default=None,
+        help="comma-separated: letter, zone, arm, multi_agent, or env IDs (default: a run's own "
+             "world; else the worlds the policy declares, else all)"),
+    arg("--suite", action="append", default=None, help="only this suite (repeatable)"),
+    arg("--seeds", type=positive_int, default=5, help="seeds 1..N (default 5)"),
+    arg("--episodes", type=positive_int, default=100, help="episodes per seed and spec (default 100)"),
+    arg("--horizon", type=positive_int, default=None,
+        help="episode length of every suite (default: each suite's own)"),
+    arg("--backend", default="jax", choices=("jax", "gymnasium"),
+        help="jax (compiled) or gymnasium (--policy module:factory whose factory(world) gives "
+             "a numpy callable (obs, task) -> actions, run through the Gymnasium vector env)"),
+    arg("--name", default=None, help="the policy's name in the tables"),
+    arg("--out", default="bench", help="report directory (default bench/)"),
+    arg("--no-progress", action="store_true", help="no progress lines"),
+)
+def bench_command(args: argparse.Namespace) -> int:
+    enable_compilation_cache()
+    from specrl_jax.benchmark import bench
+
+    worlds = None if args.worlds is None else [w.strip() for w in args.worlds.split(",") if w.strip()]
+    log = (lambda line: None) if args.no_progress else (lambda line: print(line, file=sys.stderr))
+    report = bench.score(args.policy, worlds, args.suite, args.seeds, args.episodes,
+                         backend=args.backend, horizon=args.horizon, out=args.out,
+                         name=args.name, log=log)
+    for line in report.lines():
+        print(line)
+    print(f"wrote {report.out}/: results.json, metrics.csv, tables.md, bench.png")
     return 0
 
 

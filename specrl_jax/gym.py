@@ -184,6 +184,8 @@ class GymVectorEnv(gymnasium.vector.VectorEnv):
 
     `info["propositions"]` is bool[N, P] (columns in `self.propositions` order); when an episode
     ends, `info["final_obs"]` holds its last observation where `info["_final_obs"]` is True.
+    `reset(options={"keys": keys})` starts world i from `keys[i]` (typed keys or their
+    `jax.random.key_data`), to replay chosen episodes.
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -224,6 +226,12 @@ class GymVectorEnv(gymnasium.vector.VectorEnv):
             ("vector", _config_key(self.env), num_envs), lambda: (jax.jit(reset), jax.jit(step))
         )
 
+        def reset_each(keys: jax.Array, params: Any) -> tuple:
+            obs, state = jax.vmap(self.env.reset, in_axes=(0, None))(keys, params)
+            return original(obs), state
+
+        self._reset_each = jax.jit(reset_each)
+
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[np.ndarray, dict[str, Any]]:
@@ -231,7 +239,16 @@ class GymVectorEnv(gymnasium.vector.VectorEnv):
             self._np_random, _ = gymnasium.utils.seeding.np_random(seed)
             self._key = _seed_key(seed, self._np_random)
         self._key, key = jax.random.split(self._key)
-        obs, self._state = self._reset(key, self.params)
+        if options and "keys" in options:  # replay chosen episodes: world i from keys[i]
+            keys = options["keys"]
+            if not jax.dtypes.issubdtype(keys.dtype, jax.dtypes.prng_key):
+                keys = jax.random.wrap_key_data(jnp.asarray(keys, jnp.uint32))
+            if keys.shape != (self.num_envs,):
+                raise ValueError(f"options['keys'] holds {keys.shape} keys; expected "
+                                 f"({self.num_envs},), one per world")
+            obs, self._state = self._reset_each(keys, self.params)
+        else:
+            obs, self._state = self._reset(key, self.params)
         return _numpy(obs), {}
 
     def step(self, actions: Any) -> tuple:

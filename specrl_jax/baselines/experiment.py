@@ -237,8 +237,10 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
              log: Callable[[str], None] = print, deterministic: bool | None = None,
              label: str | None = None, horizon: int | None = None,
              env_options: dict[str, Any] | None = None, devices: Sequence[Any] | None = None,
-             method_options: dict[str, Any] | None = None, **policy_options: Any) -> list:
-    """Evaluate every trained seed (leading axis of `params`, seed i + 1 for entry i) on `suites`
+             method_options: dict[str, Any] | None = None, seeds: Sequence[int] | None = None,
+             **policy_options: Any) -> list:
+    """Evaluate every trained seed (leading axis of `params`, evaluation seed i + 1 for entry i,
+    or `seeds[i]`) on `suites`
     (`eval.suites.evaluate_suites`: infinite suites over 10 finite horizons unless `horizon`;
     episodes sharded over `devices`, default every local device).
     Returns `SuiteResult`s with one row per trained seed."""
@@ -254,7 +256,8 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
     policy = make_policy(method, world, method_obj, deterministic, None, **policy_options)
     num_seeds = jax.tree.leaves(params)[0].shape[0]
     return evaluate_suites(
-        policy, env_id, world, env_params, suites, episodes, seeds=range(1, num_seeds + 1),
+        policy, env_id, world, env_params, suites, episodes,
+        seeds=range(1, num_seeds + 1) if seeds is None else seeds,
         policy_params=params, params_per_seed=True, horizon=horizon,
         label=label or spec.title, log=log, devices=devices,
     )

@@ -233,7 +233,7 @@ def record_trajectories(cell: Cell, params: Any, episodes: int = 3) -> dict[str,
     states, alive = jax.device_get(record_episodes(
         policy, TaskEnv(world, compiled), env_params, keys,
         jnp.full(episodes, TRAJECTORY_INDEX, jnp.int32), policy_params=one))
-    xy = np.asarray(states.env_state.physics.agent_pos)[..., :2]
+    xy = np.asarray(states.env_state.physics.agent_pos, np.float64)[..., :2]
     layouts = jax.device_get(jax.vmap(world.layout)(
         jax.tree.map(lambda x: x[:, 0], states.env_state)))
     out = []
@@ -243,9 +243,10 @@ def record_trajectories(cell: Cell, params: Any, episodes: int = 3) -> dict[str,
         out.append({
             "xy": np.round(xy[i, :steps], 3).tolist(),
             "outcome": "success" if success else "violation" if violation else "timeout",
-            "zone_xy": np.round(np.asarray(layouts["zone_xy"][i]), 3).tolist(),
+            "zone_xy": np.round(np.asarray(layouts["zone_xy"][i], np.float64), 3).tolist(),
             "zone_color": [world.propositions[int(c)] for c in layouts["zone_color"][i]],
-            "zone_radius": np.round(np.asarray(layouts["zone_radius"][i]), 3).tolist(),
+            "zone_radius": np.round(np.asarray(layouts["zone_radius"][i], np.float64),
+                                    3).tolist(),
         })
     return {"formula": formulas[TRAJECTORY_INDEX], "suite": TRAJECTORY_SUITE,
             "seed": TRAJECTORY_SEED, "params": "seed 1", "episodes": out}

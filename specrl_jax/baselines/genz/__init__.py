@@ -249,8 +249,26 @@ def first_of_kind(avoid_props: jax.Array, allowed: jax.Array) -> jax.Array:
     return (allowed & ~taken).reshape(-1)
 
 
+def epsilon_slot(spec: Any, q: jax.Array, candidate: jax.Array, num_props: int,
+                 symbol: jax.Array) -> jax.Array:
+    """int32[]: the epsilon slot GenZ-LTL's agent takes now, or -1.
+
+    The chosen candidate (`candidate` = c * P + p, as `candidate_masks`) belongs to sequence c of
+    state `q`; when that sequence starts with an epsilon step, the jump is taken as soon as the
+    label `symbol` lies outside the avoid set of the pair after it (DeepLTL's epsilon mask, taken
+    at once: GenZ-LTL has no epsilon action). For `F G x & G !y` that is on entering x: the jump
+    lands in the loop that accepts every step spent in x.
+    """
+    seq = candidate // num_props
+    steps = pairs(spec, spec.seq_pair[q, seq])
+    take = (spec.seq_valid[q, seq] & steps.epsilon[0] & (spec.seq_length[q, seq] > 1)
+            & ~steps.avoid[1, symbol])
+    return jnp.where(take, steps.epsilon_slot[0], -1).astype(jnp.int32)
+
+
 def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str, str],
-                deterministic: bool = True, replan_steps: int = 300) -> StatefulPolicy:
+                deterministic: bool = True, replan_steps: int = 300,
+                take_epsilon: bool = True) -> StatefulPolicy:
     """GenZ-LTL's test-time agent as a `StatefulPolicy` for `specrl_jax.eval.evaluate`.
 
     Plans at the first step and whenever the automaton state changes: the candidate maximising
@@ -261,6 +279,12 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
     the timer restarts). With no candidate left the agent gives the episode up (`aborted`, the
     reference's `NoPathsException`: neither success nor violation). Actions are the policy's
     mode (`deterministic`, the reference's setting) or samples.
+
+    Epsilon edges (`F G` formulas): with `take_epsilon` the agent jumps where `epsilon_slot`
+    says (inside the goal zone), so the automaton reaches the accepting loop and the timer, which
+    never fires on an accepting step, keeps the subgoal. The reference's tracker never jumps and
+    its search finds no candidate there (every such episode is unreachable, docs/fidelity.md);
+    `take_epsilon=False` never jumps, and an `F G` episode is given up at its first timeout.
 
     A plan scores the distinct open candidates only (`first_of_kind`), and none when no plan is
     due (`scoring.score_chosen`).
@@ -304,7 +328,9 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
                             carry._replace(steps=jnp.where(timed_out, 0, carry.steps)))
         out = network.apply(params, reduce_observation(obs, obs_kinds, carry.reach, carry.avoid))
         action = out.pi.mode() if deterministic else out.pi.sample(key)
-        return action, carry._replace(steps=carry.steps + 1)
+        slot = epsilon_slot(spec, q, carry.candidate, alphabet.shape[1], symbol)
+        slot = jnp.where(take_epsilon & ~carry.stuck, slot, -1)
+        return (action, slot), carry._replace(steps=carry.steps + 1)
 
     return StatefulPolicy(init, apply, aborted=lambda carry: carry.stuck)
 

@@ -1,0 +1,121 @@
+"""Persistence (`F G a & G !(b | c)`) through the test-time agents of GenZ-LTL and DeepLTL, with
+scripted networks, on a tiny torus with a stay action: the agent walks to 'a', the planner takes
+the epsilon jump there and keeps the subgoal, and the agent stays; no violation, no abort, and
+every step after the jump is an accepting visit, so the visits grow one for one with the horizon.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from specrl_jax.baselines import deepltl, genz
+from specrl_jax.baselines.ppo.networks import Categorical, PolicyOutput
+from specrl_jax.envs.spaces import Discrete
+from specrl_jax.eval import evaluate
+from tests.eval.tiny_world import MOVES, TinyConfig, TinyParams, TinyWorld
+
+PERSISTENCE = "F G a & G !(b | c)"
+STAY = 4
+STEPS = np.concatenate([MOVES, [(0, 0)]])
+
+
+class StayWorld(TinyWorld):
+    """The tiny torus with a fifth action that stays in place."""
+
+    obs_kinds = {"ap": "grid", "ego": "grid"}
+
+    @property
+    def action_space(self) -> Discrete:
+        return Discrete(5)
+
+    def step_env(self, key, state, action, params):
+        agent = (state.agent + jnp.asarray(STEPS)[action]) % self.config.grid_size
+        state = state.replace(agent=agent.astype(jnp.int32), time=state.time + 1)
+        return self._obs(state), state, jnp.zeros(()), jnp.zeros((), bool), {
+            "propositions": self._label(state)}
+
+
+def _move_toward(target: jax.Array, agent: jax.Array, n: int) -> jax.Array:
+    """Action (0 up, 1 down, 2 left, 3 right, 4 stay) of one step toward flat cell `target` on
+    an n x n torus; stay where the agent is on it."""
+    wrap = lambda d: (d + n // 2) % n - n // 2  # noqa: E731
+    di, dj = wrap(target // n - agent // n), wrap(target % n - agent % n)
+    return jnp.where(di < 0, 0, jnp.where(di > 0, 1, jnp.where(dj < 0, 2, jnp.where(dj > 0, 3, STAY))))
+
+
+class GenZScript:
+    """A GenZ-LTL network stand-in on the reduced image: toward the reach cell (1.0); where none
+    shows (the agent, drawn last, stands on it) stay. Values 1, no cost."""
+
+    def apply(self, params, parts):
+        flat = parts["grid"][..., 0].reshape(*parts["grid"].shape[:-3], -1)
+        n = parts["grid"].shape[-2]
+        agent = jnp.argmax(flat == genz.AGENT, axis=-1)
+        shown = jnp.any(flat == genz.REACH, axis=-1)
+        target = jnp.where(shown, jnp.argmax(flat == genz.REACH, axis=-1), agent)
+        move = _move_toward(target, agent, n)
+        ones = jnp.ones(move.shape)
+        return PolicyOutput(Categorical(10.0 * jax.nn.one_hot(move, 5)), ones, 0 * ones, 0 * ones)
+
+
+class DeepLTLScript:
+    """A DeepLTL network stand-in: the epsilon action where it is allowed, else toward a
+    proposition of the first non-epsilon pair's reach set, staying on it. Values 1."""
+
+    continuous = False
+    num_actions = 5
+
+    def __init__(self, alphabet):
+        self.alphabet = jnp.asarray(alphabet, bool)
+
+    def apply(self, params, obs):
+        return jax.vmap(self._one)(obs) if obs.start.ndim else self._one(obs)
+
+    def _one(self, obs):
+        grid = obs.parts["grid"]  # [N, N, P + 1]: the propositions, then the agent
+        n = grid.shape[0]
+        pair = obs.start + obs.epsilon[obs.start].astype(jnp.int32)
+        props = jnp.any(obs.reach[pair][:, None] & self.alphabet, axis=0)  # [P]
+        cells = jnp.any((grid[..., :-1] > 0) & props, axis=-1).reshape(-1)
+        agent = jnp.argmax(grid[..., -1].reshape(-1))
+        target = jnp.where(cells[agent], agent, jnp.argmax(cells))
+        move = jnp.where(obs.epsilon_allowed, 5, _move_toward(target, agent, n))
+        logits = jnp.where(jnp.arange(6) == move, 10.0, 0.0)
+        return PolicyOutput(Categorical(logits), jnp.ones(()), jnp.zeros(()), jnp.zeros(()))
+
+
+def _outcomes(policy, horizon: int):
+    world = StayWorld(TinyConfig(grid_size=5, num_letters=3))
+    params = TinyParams(max_steps=horizon)
+    return evaluate(policy, (world, params), [PERSISTENCE], seeds=[0], episodes_per_seed=6,
+                    horizon=horizon).table
+
+
+def _check_stays(policy):
+    short, long = _outcomes(policy, 20), _outcomes(policy, 45)
+    for table in (short, long):
+        assert not np.asarray(table.violation).any()
+        assert not np.asarray(table.aborted).any()
+    visits_short, visits_long = np.asarray(short.num_accepting), np.asarray(long.num_accepting)
+    # a 5 x 5 torus: 'a' is at most 4 moves away, then one epsilon step, then a visit per step
+    assert (visits_short >= 20 - 4 - 1).all(), visits_short
+    np.testing.assert_array_equal(visits_long - visits_short, 25)
+
+
+def test_genz_agent_jumps_in_the_goal_and_keeps_the_subgoal():
+    world = StayWorld(TinyConfig(grid_size=5, num_letters=3))
+    # a 6-step subgoal timer: without the jump the automaton never moves, so the reach
+    # proposition is given up at the first timeout and, with no candidate left, the episode
+    policy = genz.make_policy(GenZScript(), world.alphabet, world.obs_kinds, replan_steps=6)
+    _check_stays(policy)
+    never = genz.make_policy(GenZScript(), world.alphabet, world.obs_kinds, replan_steps=6,
+                             take_epsilon=False)
+    table = _outcomes(never, 20)
+    assert np.asarray(table.aborted).all() and not np.asarray(table.num_accepting).any()
+
+
+def test_deepltl_agent_jumps_in_the_goal_and_keeps_its_sequence():
+    world = StayWorld(TinyConfig(grid_size=5, num_letters=3))
+    policy = deepltl.make_policy(DeepLTLScript(world.alphabet), world.alphabet, world.obs_kinds,
+                                 deterministic=True)
+    _check_stays(policy)
