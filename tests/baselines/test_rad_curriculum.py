@@ -126,7 +126,7 @@ def test_rad_trains_a_tiny_world_on_the_curriculum():
                              encoder_params=encoder_params)
     assert isinstance(method.env.task.source, CurriculumDFASource)
     assert method.env.task.source.bank is bank
-    updates = 100
+    updates = 180  # success passes 0.4 after 110-150 updates, depending on XLA:CPU's numerics
     cfg = rad.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * updates,
                          update_epochs=4, num_minibatches=2, lr=1e-3)
     _, rows = train_rows(rad, method, cfg, updates)
