@@ -20,6 +20,8 @@ is replaced by `action_space.sanitize` (action 0, or zeros), the episode ends (`
 and `info["invalid_action"]` (bool) is set; it is False on every valid step, so wrappers pass
 it on. `checked(env)` (`envs/checked.py`) raises instead. (No check is traced into the step
 itself: even a `checkify.debug_check` made LetterWorld's batched CPU step 35% slower.)
+An action given as a Python list or tuple (e.g. of traced values, built inside a trace) is
+refused with `TypeError` naming the accepted shape and dtype: an action is one array.
 
 Eager `reset`/`step` calls (outside any trace) run a jitted function shared by every env of the
 same type and config, so a second env of one config compiles nothing.
@@ -114,6 +116,7 @@ class Env(abc.ABC):
         """
         params = self.default_params if params is None else params
         space = self.action_space
+        check_action_container(action, space.shape, space.dtype)
         space.check(action)
         if not _is_traced((key, state, action, params)):
             # one dtype for Python scalars and arrays alike, so both hit one compiled step
@@ -130,6 +133,20 @@ class Env(abc.ABC):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({getattr(self, 'config', '')})"
+
+
+def check_action_container(action: Any, shape: tuple[int, ...], dtype: Any,
+                           what: str = "action") -> None:
+    """Raise `TypeError` for an action given as a Python list or tuple: an action is one array
+    (under `jit` a list of traced values cannot be read as one, and JAX would raise
+    `TracerArrayConversionError` from inside the shape check)."""
+    if isinstance(action, (list, tuple)):
+        traced = " holding traced values (built under jit/vmap)" if _is_traced(action) else ""
+        raise TypeError(
+            f"{what} is a Python {type(action).__name__} of {len(action)} items{traced}; "
+            f"expected one array of shape {tuple(shape)} and dtype {jnp.dtype(dtype).name} "
+            "(pass jnp.asarray(...) or jnp.stack(...) of it)"
+        )
 
 
 def _is_traced(tree: Any) -> bool:

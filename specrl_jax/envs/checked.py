@@ -19,7 +19,7 @@ import jax
 import numpy as np
 from jax.experimental import checkify
 
-from specrl_jax.envs.base import Obs, StepOut
+from specrl_jax.envs.base import Obs, StepOut, check_action_container
 from specrl_jax.envs.wrappers import BatchedEnv
 
 
@@ -56,6 +56,10 @@ class Checked:
 
     def step(self, key: jax.Array, state: Any, action: jax.Array, params: Any = None) -> StepOut:
         params = self.env.default_params if params is None else params
+        space = self.env.action_space
+        shape = (self.env.num_envs, *space.shape) if self._batched else space.shape
+        check_action_container(action, shape, space.dtype, "batched action" if self._batched
+                               else "action")
         if not self._batched:
             error, out = self._step(key, state, action, params)
             error.throw()

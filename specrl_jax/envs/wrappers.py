@@ -13,23 +13,70 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from specrl_jax.envs.base import Obs, StepOut
+from specrl_jax.envs.base import Obs, StepOut, check_action_container
 
 
 def select_tree(pred: jax.Array, on_true: Any, on_false: Any) -> Any:
-    """Leaf-wise `where(pred, on_true, on_false)` for a scalar `pred` (one env)."""
-    return jax.tree.map(lambda a, b: jnp.where(pred, a, b), on_true, on_false)
+    """Leaf-wise `where(pred, on_true, on_false)`; `pred` is bool[] (one env) or bool[B] (a
+    batch: broadcast over each leaf's trailing axes)."""
+
+    def pick(a: jax.Array, b: jax.Array) -> jax.Array:
+        return jnp.where(jnp.reshape(pred, jnp.shape(pred) + (1,) * (jnp.ndim(b) - jnp.ndim(pred))),
+                         a, b)
+
+    return jax.tree.map(pick, on_true, on_false)
 
 
-def reset_done(done: jax.Array, reset: Callable[[], tuple[Obs, Any]], obs: Any, state: Any,
-               info: dict[str, Any]) -> tuple[Any, Any, dict[str, Any]]:
-    """The project's one auto-reset (same step, one env): where `done`, the obs and state of a
-    fresh episode from `reset()` replace the stepped ones; `info["final_observation"]` keeps the
-    last observation of the finished episode. Every reset is a fresh draw (never a cached state).
+def episode_done(env: Any, terminated: jax.Array, truncated: jax.Array) -> jax.Array:
+    """bool[]: one world's episode is over. A world with per-agent flags (`terminated bool[N]`)
+    defines it as `env.episode_done` (a multi-agent Zone world: every agent done); otherwise
+    `terminated | truncated`."""
+    done = terminated | truncated
+    if jnp.ndim(done) == 0:
+        return done
+    return env.episode_done(terminated, truncated) if hasattr(env, "episode_done") else jnp.all(done)
+
+
+def reset_done(done: jax.Array, reset: Callable[[jax.Array], tuple[Obs, Any]], key: jax.Array,
+               obs: Any, state: Any, info: dict[str, Any],
+               resets_per_step: int | None = None) -> tuple[Any, Any, dict[str, Any]]:
+    """The project's one auto-reset (same step): where `done`, the obs and state of a fresh
+    episode replace the stepped ones; `info["final_observation"]` keeps the stepped observation
+    (the last one of a finished episode). Every reset is a fresh draw (never a cached state).
+
+    Args:
+        done: bool[] for one world, or bool[B] for a batch (obs and state with leading axis B).
+        reset: `key -> (obs, state)`, one fresh episode of one world.
+        key: the resets' key.
+        resets_per_step: a batch's number k of fresh resets computed per step (default: B, a
+            reset for every world). With k < B the k resets are scattered into the worlds that
+            finished; a step where more than k finish falls back to a reset for every world
+            (`lax.cond`; under an outer `vmap` both branches run). This is the fast form where
+            resets are costly: an exact reset (e.g. a rejection-sampled LetterWorld map) under
+            `vmap` costs as much as its slowest lane, so computing B per step made `batch(env,
+            256)` ~50x slower. Results equal those of k = B up to which fresh draw a world gets.
     """
-    obs_reset, state_reset = reset()
     info = {**info, "final_observation": obs}
-    return select_tree(done, obs_reset, obs), select_tree(done, state_reset, state), info
+    if jnp.ndim(done) == 0:
+        obs_reset, state_reset = reset(key)
+        return select_tree(done, obs_reset, obs), select_tree(done, state_reset, state), info
+    num = done.shape[0]
+    k = num if resets_per_step is None else resets_per_step
+    reset_many = jax.vmap(reset)
+
+    def reset_all(_: None) -> tuple[Any, Any]:
+        return select_tree(done, reset_many(jax.random.split(key, num)), (obs, state))
+
+    def scatter_few(_: None) -> tuple[Any, Any]:
+        (index,) = jnp.nonzero(done, size=k, fill_value=num)  # past the end: dropped
+        fresh = reset_many(jax.random.split(key, k))
+        return jax.tree.map(lambda x, r: x.at[index].set(r, mode="drop"), (obs, state), fresh)
+
+    if k >= num:
+        new_obs, new_state = reset_all(None)
+    else:
+        new_obs, new_state = jax.lax.cond(jnp.sum(done) <= k, scatter_few, reset_all, None)
+    return new_obs, new_state, info
 
 
 class Wrapper:
@@ -46,9 +93,11 @@ class Wrapper:
 
 
 class AutoReset(Wrapper):
-    """Same-step auto-reset: when an episode ends, the returned obs and state are those of a
-    fresh episode (a new layout); the last observation of the finished episode is kept in
-    `info["final_observation"]`, and `info["final_info"]` keeps that step's info.
+    """Same-step auto-reset (`reset_done`): when an episode ends (`episode_done`), the returned
+    obs and state are those of a fresh episode (a new layout); the last observation of the
+    finished episode is kept in `info["final_observation"]`, and `info["final_info"]` keeps that
+    step's info. A world with per-agent flags (`terminated bool[N]`) ends its episode when
+    every agent is done, marked by `info["episode_done"]` (bool[]).
 
     `terminated`/`truncated` and `info["propositions"]` describe the step that was taken.
     """
@@ -59,9 +108,12 @@ class AutoReset(Wrapper):
         obs, state_next, reward, terminated, truncated, info = self.env.step(
             key_step, state, action, params
         )
+        done = episode_done(self.env, terminated, truncated)
+        info = {**info, "final_info": dict(info)}
+        if jnp.ndim(terminated) > 0:  # per-agent flags
+            info["episode_done"] = done
         obs, state_next, info = reset_done(
-            terminated | truncated, lambda: self.env.reset(key_reset, params), obs, state_next,
-            {**info, "final_info": dict(info)},
+            done, lambda k: self.env.reset(k, params), key_reset, obs, state_next, info
         )
         return obs, state_next, reward, terminated, truncated, info
 
@@ -131,7 +183,9 @@ class BatchedEnv(Wrapper):
 
     def step(self, key: jax.Array, state: Any, action: jax.Array, params: Any = None) -> StepOut:
         params = self.env.default_params if params is None else params
-        expected = (self.num_envs, *self.env.action_space.shape)
+        space = self.env.action_space
+        expected = (self.num_envs, *space.shape)
+        check_action_container(action, expected, space.dtype, "batched action")
         if jnp.shape(action) != expected:
             raise ValueError(
                 f"batched action has shape {jnp.shape(action)}; expected {expected} "
@@ -150,12 +204,11 @@ class BatchedAutoReset(BatchedEnv):
     """`num_envs` copies of an env, auto-resetting, with resets computed for finished worlds only.
 
     Semantics are `BatchedEnv(AutoReset(env))`'s: the same step, every reset a fresh exact draw,
-    `info["final_observation"]` and `info["final_info"]`. Cost differs: an exact reset (e.g. a
-    rejection-sampled LetterWorld map) under `vmap` costs as much as its slowest lane, and the
-    plain wrapper computes one per world at every step. Here a step computes `resets_per_step`
-    (default B / 32) fresh resets and scatters them into the worlds that finished; a step where
-    more worlds finish falls back to a reset for every world (`lax.cond`; under an outer `vmap`
-    both branches run).
+    `info["final_observation"]` and `info["final_info"]`; a world with per-agent flags ends its
+    episode as `AutoReset` says (`episode_done`: every agent done), marked by
+    `info["episode_done"]` (bool[B]). Cost differs: `reset_done` computes `resets_per_step`
+    (default B / 32) fresh resets per step and scatters them into the worlds that finished
+    (a reset for every world on a step where more finish).
     """
 
     def __init__(self, env: Any, num_envs: int, resets_per_step: int | None = None):
@@ -170,24 +223,13 @@ class BatchedAutoReset(BatchedEnv):
         key_step, key_reset = jax.random.split(key)
         obs, state, reward, terminated, truncated, info = super().step(
             key_step, state, action, params)
-        done = terminated | truncated
+        done = jax.vmap(lambda te, tr: episode_done(self.env, te, tr))(terminated, truncated)
         info = {**info, "final_info": dict(info)}
-        reset = jax.vmap(self.env.reset, in_axes=(0, None))
-        num, k = self.num_envs, self.resets_per_step
-
-        def scatter_few(_):
-            (index,) = jnp.nonzero(done, size=k, fill_value=num)  # past the end: dropped
-            fresh = reset(jax.random.split(key_reset, k), params)
-            return jax.tree.map(lambda x, r: x.at[index].set(r, mode="drop"), (obs, state), fresh)
-
-        def reset_all(_):
-            fresh = reset(jax.random.split(key_reset, num), params)
-            return jax.tree.map(lambda r, x: jnp.where(done.reshape(-1, *[1] * (x.ndim - 1)), r, x),
-                                fresh, (obs, state))
-
-        new_obs, new_state = jax.lax.cond(jnp.sum(done) <= k, scatter_few, reset_all, None)
-        info["final_observation"] = obs
-        return new_obs, new_state, reward, terminated, truncated, info
+        if jnp.ndim(terminated) > 1:  # per-agent flags
+            info["episode_done"] = done
+        obs, state, info = reset_done(done, lambda k: self.env.reset(k, params), key_reset, obs,
+                                      state, info, self.resets_per_step)
+        return obs, state, reward, terminated, truncated, info
 
 
 def batch(env: Any, num_envs: int, auto_reset: bool = True,

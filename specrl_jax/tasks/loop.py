@@ -184,7 +184,7 @@ class TaskEnv:
         next_index = self.source.next_index(state.task)
         obs, new_state, info = reset_done(
             terminated | truncated,
-            lambda: self.reset(key_reset, params, next_index, source_params),
-            obs, new_state, info,
+            lambda k: self.reset(k, params, next_index, source_params),
+            key_reset, obs, new_state, info,
         )
         return obs, new_state, reward, terminated, truncated, info

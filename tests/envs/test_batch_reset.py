@@ -63,3 +63,34 @@ def test_default_batch_is_far_cheaper_than_a_reset_per_world_per_step():
         jax.block_until_ready(ended)
         rates[name] = 2560 / (time.perf_counter() - start)
     assert rates["default"] > 8 * rates["per world"], rates
+
+
+def _toy_reset(key):
+    """A cheap fresh episode: a random obs vector and a random state."""
+    key_obs, key_state = jax.random.split(key)
+    return {"x": jax.random.uniform(key_obs, (2,))}, jax.random.randint(key_state, (), 1, 10**6)
+
+
+def test_one_reset_done_for_one_world_a_batch_and_a_few_resets_per_step():
+    """`reset_done` is the one auto-reset: one world (bool[]), a batch with a reset per world
+    (the same as the one-world form per world), and the batch's k resets scattered into the
+    finished worlds, falling back to a reset per world when more than k finish."""
+    from specrl_jax.envs.wrappers import reset_done
+
+    obs, state = {"x": -jnp.ones((5, 2))}, -jnp.arange(1, 6)
+    key = jax.random.key(3)
+    one = lambda d, k, o, s: reset_done(d, _toy_reset, k, o, s, {})[:2]
+    done = jnp.array([True, False, True, False, False])
+    per_world = jax.vmap(one)(done, jax.random.split(key, 5), obs, state)
+    every = jax.jit(lambda d: reset_done(d, _toy_reset, key, obs, state, {"a": 1}))(done)
+    jax.tree.map(np.testing.assert_array_equal, every[:2], per_world)
+    assert every[2]["a"] == 1 and np.asarray(every[2]["final_observation"]["x"]).min() == -1
+    few = jax.jit(lambda d: reset_done(d, _toy_reset, key, obs, state, {}, 2)[:2])
+    new_obs, new_state = few(done)
+    fresh_obs, fresh_state = jax.vmap(_toy_reset)(jax.random.split(key, 2))
+    np.testing.assert_array_equal(np.asarray(new_state)[[0, 2]], fresh_state)
+    np.testing.assert_array_equal(np.asarray(new_obs["x"])[[0, 2]], fresh_obs["x"])
+    np.testing.assert_array_equal(np.asarray(new_state)[[1, 3, 4]], [-2, -4, -5])
+    more = jnp.array([True, True, False, True, False])  # 3 > k = 2: a reset for every world
+    jax.tree.map(np.testing.assert_array_equal, few(more),
+                 jax.vmap(one)(more, jax.random.split(key, 5), obs, state))
