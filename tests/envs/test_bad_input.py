@@ -103,6 +103,32 @@ def test_zone_non_finite_action_ends_the_episode_and_keeps_the_state_finite():
         env.step(jax.random.key(1), state, jnp.array([np.nan, 0.0]), params)
 
 
+def test_a_python_list_action_gets_the_projects_message_also_under_jit():
+    env, params = make_letter_world(LetterConfig(grid_size=5, letters=("a", "b"), counts=2))
+    _, state = env.reset(jax.random.key(0), params)
+    key = jax.random.key(1)
+    message = r"action is a Python list of 1 items holding traced values.*shape \(\) and dtype int32"
+    with pytest.raises(TypeError, match=message):
+        jax.jit(lambda s, a: env.step(key, s, [a], params))(state, jnp.int32(1))
+    with pytest.raises(TypeError, match=r"action is a Python list of 1 items; expected one array"):
+        env.step(key, state, [1], params)
+    with pytest.raises(TypeError, match=r"action is a Python list of 1 items; expected"):
+        checked(env).step(key, state, [1], params)
+    worlds = batch(env, 2)
+    _, states = worlds.reset(jax.random.key(0), params)
+    with pytest.raises(TypeError, match=r"batched action is a Python tuple of 2 items holding "
+                                        r"traced values.*shape \(2,\) and dtype int32"):
+        jax.jit(lambda s, a: worlds.step(key, s, (a, a), params))(states, jnp.int32(1))
+    zone, zone_params = specrl_jax.make("PointLTL0-v0")
+
+    def zone_step(key, action):  # traced only: the error comes before anything compiles
+        _, zone_state = zone.reset(key, zone_params)
+        return zone.step(key, zone_state, [action[0], action[1]], zone_params)
+
+    with pytest.raises(TypeError, match=r"shape \(2,\) and dtype float32"):
+        jax.eval_shape(zone_step, key, jnp.zeros(2))
+
+
 # ------------------------------------------------------------------ overrides
 
 
@@ -152,3 +178,22 @@ def test_letter_world_builds_after_validation():
     # the default registry world still builds and steps (the estimate runs once per size)
     env = LetterWorld()
     assert env.config.map_spec.fallback is not None
+
+
+def test_zones_that_cross_the_walls_are_rejected_with_the_accepted_radius():
+    from specrl_jax.envs.multi import MultiZoneConfig
+    from specrl_jax.envs.zone import ZoneConfig
+    from specrl_jax.envs.zone.config import level_config
+
+    # static zones: centres within extent - keepout = 2.5 - 0.55 m, walls at 3.3 m
+    with pytest.raises(ValueError, match=r"arena is \+-3.3 m.*zone_radius must be <= 1.35 m"):
+        ZoneConfig(zone_radius=3.0)
+    assert ZoneConfig(zone_radius=1.35).zone_radius[0] == 1.35
+    with pytest.raises(ValueError, match="zones of radius 3.0 m cross the walls"):
+        specrl_jax.make("PointLTL0-v0", zone_radius=3.0)
+    # moving zones (level 2: keepout 0.7) also travel 0.3 m from their layout centre
+    assert level_config("Point", 2, zone_radius=1.2).zone_radius[0] == 1.2
+    with pytest.raises(ValueError, match=r"plus travel 0.3.*zone_radius must be <= 1.20 m"):
+        level_config("Point", 2, zone_radius=1.25)
+    with pytest.raises(ValueError, match="cross the walls"):
+        MultiZoneConfig(num_agents=2, zone_radius=3.0)

@@ -178,6 +178,16 @@ class ZoneConfig:
                     f"colour {c!r}: zone keepout {k} leaves no room to place it inside the "
                     f"extent {self.extent} (need keepout < extent)"
                 )
+            reach = self.extent - k + (self.travel if m else 0.0)  # farthest centre from 0
+            if n and r + reach > self.wall + 1e-9:
+                moving = f" plus travel {self.travel}" if m else ""
+                raise ValueError(
+                    f"colour {c!r}: zones of radius {r} m cross the walls (the arena is "
+                    f"+-{self.wall} m): the layout sampler puts a centre up to extent - keepout "
+                    f"= {self.extent - k:.2f} m{moving} from the middle, so zone_radius must be "
+                    f"<= {self.wall - reach:.2f} m (wall - {reach:.2f}); use a smaller "
+                    "zone_radius, a larger zone_keepout or a smaller extent"
+                )
         if self.num_zones < 1:
             raise ValueError("a Zone world needs at least one zone")
         if not 0 <= self.agent_keepout < self.extent:
