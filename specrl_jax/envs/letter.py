@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any
 
 import jax
@@ -12,6 +12,7 @@ from flax import struct
 
 from specrl_jax.envs import letter_maps
 from specrl_jax.envs.base import Env, Info, Obs
+from specrl_jax.envs.registry import Overrides
 from specrl_jax.envs.spaces import Box, Dict, Discrete
 
 # Row/column change of actions 0 up, 1 down, 2 left, 3 right (the original's order).
@@ -297,25 +298,17 @@ def _letter_under(state: LetterState) -> jax.Array:
     return state.letters[state.agent[0], state.agent[1]]
 
 
+#: what `make("LetterLTL0-v0...", **overrides)` and `make_letter_world` accept: every
+#: LetterConfig field and `max_steps` (checked by `envs.registry.Overrides`)
+OVERRIDES = Overrides(LetterConfig, LetterParams)
+
+
 def make_letter_world(config: LetterConfig, **overrides: Any) -> tuple[LetterWorld, LetterParams]:
     """Build `(env, params)`; `overrides` replace LetterConfig or LetterParams fields."""
-    config_names = {f.name for f in fields(LetterConfig)}
-    param_names = {"max_steps"}
-    unknown = set(overrides) - config_names - param_names
-    if unknown:
-        raise ValueError(
-            f"unknown LetterWorld option(s) {sorted(unknown)}; accepted: "
-            f"{sorted(config_names | param_names)}"
-        )
-    config_kwargs = {k: v for k, v in overrides.items() if k in config_names}
+    config_kwargs, params_kwargs = OVERRIDES.split(overrides)
     env = LetterWorld(LetterConfig(**{**config.__dict__, **config_kwargs}))
     params = env.default_params
-    if "max_steps" in overrides:
-        max_steps = overrides["max_steps"]
-        if not isinstance(max_steps, int) or isinstance(max_steps, bool) or max_steps < 1:
-            raise ValueError(f"max_steps must be a positive int, got {max_steps!r}")
-        params = params.replace(max_steps=max_steps)
-    return env, params
+    return env, params.replace(**params_kwargs) if params_kwargs else params
 
 
 def env_ids() -> dict[str, tuple[Any, str]]:
@@ -324,9 +317,11 @@ def env_ids() -> dict[str, tuple[Any, str]]:
         "LetterLTL0-v0": (
             lambda **kw: make_letter_world(LetterConfig(), **kw),
             "LetterWorld, 7x7 torus, 12 letters x 2, full agent-centred view",
+            OVERRIDES,
         ),
         "LetterLTL0-v0.partial": (
             lambda **kw: make_letter_world(LetterConfig(grid_size=15, view_size=7), **kw),
             "LetterWorld, 15x15 torus, 12 letters x 2, 7x7 agent-centred view",
+            OVERRIDES,
         ),
     }

@@ -193,7 +193,7 @@ def test_config_validation(kwargs, message):
 
 
 def test_make_rejects_unknown_options_and_bad_horizon():
-    with pytest.raises(ValueError, match="unknown LetterWorld option.*'colour'.*accepted"):
+    with pytest.raises(ValueError, match="unknown LetterParams fields.*'colour'.*accepted"):
         specrl_jax.make("LetterLTL0-v0", colour=3)
     with pytest.raises(ValueError, match="max_steps must be a positive int"):
         specrl_jax.make("LetterLTL0-v0", max_steps=0)

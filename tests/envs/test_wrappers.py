@@ -95,3 +95,63 @@ def test_registry_errors_and_listing():
         specrl_jax.make(3)
     with pytest.raises(ValueError, match="already registered"):
         registry.register("LetterLTL0-v0", lambda: None)
+
+
+def test_make_validates_the_overrides_of_every_family_before_building(monkeypatch):
+    """`registry.make` is the one place that checks an ID's overrides: unknown names are
+    listed with the accepted ones, names the ID fixes and bad horizons are refused, and the
+    family's factory is not called before."""
+    cases = {
+        "LetterLTL0-v0": ("LetterParams", "LetterConfig", "grid_size"),
+        "PointLTL0-v0": ("ZoneParams", "ZoneConfig", "zone_radius"),
+        "PandaLTLReach0-v0": ("ArmParams", "ArmConfig", "region_radius"),
+        "PointLTL0MA2-v0": ("MultiZoneParams", "MultiZoneConfig", "collisions"),
+    }
+    table = registry._family_table()
+    for env_id, (params, config, field) in cases.items():
+        _, description, accepted = table[env_id]
+        assert accepted is not None
+
+        def no_build(**overrides):
+            raise AssertionError("the factory ran before the overrides were checked")
+
+        monkeypatch.setitem(table, env_id, (no_build, description, accepted))
+        with pytest.raises(ValueError) as err:
+            specrl_jax.make(env_id, max_step=5)
+        message = str(err.value)
+        assert message.startswith(
+            f"unknown {params} fields ['max_step'] (nor {config} fields) for {env_id!r}; "
+            f"accepted: {config} fields ["
+        )
+        assert f"'{field}'" in message and "did you mean 'max_steps'" in message
+        with pytest.raises(ValueError, match="max_steps must be a positive int, got 0"):
+            specrl_jax.make(env_id, max_steps=0)
+    # names an ID fixes (the level's keepout and moving zones used to fail deep in ZoneConfig)
+    for env_id, name in (("PointLTL1-v0", "zone_keepout"), ("PointLTL1-v0", "moving_per_color"),
+                         ("PandaLTLReach0-v0", "control"), ("PointLTL0MA2-v0", "robot")):
+        with pytest.raises(ValueError, match=rf"\['{name}'\] are fixed by the env ID '{env_id}'"):
+            specrl_jax.make(env_id, **{name: 1})
+
+
+def test_registered_factories_are_validated_by_make():
+    from specrl_jax.envs.letter import LetterConfig, LetterParams, make_letter_world
+
+    calls = []
+
+    def factory(**overrides):
+        calls.append(overrides)
+        return make_letter_world(LetterConfig(grid_size=5, letters=("a", "b"), counts=2),
+                                 **overrides)
+
+    accepted = registry.Overrides(LetterConfig, LetterParams, fixed=("grid_size",))
+    registry.register("TinyLetter-v0", factory, "5x5", accepted)
+    try:
+        with pytest.raises(ValueError, match="fixed by the env ID 'TinyLetter-v0'"):
+            specrl_jax.make("TinyLetter-v0", grid_size=7)
+        with pytest.raises(ValueError, match=r"unknown LetterParams fields \['horizon'\]"):
+            specrl_jax.make("TinyLetter-v0", horizon=7)
+        assert calls == []
+        env, params = specrl_jax.make("TinyLetter-v0", max_steps=9)
+        assert params.max_steps == 9 and env.config.grid_size == 5 and calls == [{"max_steps": 9}]
+    finally:
+        registry._EXTRA.pop("TinyLetter-v0")

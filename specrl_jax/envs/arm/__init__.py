@@ -12,30 +12,22 @@ from typing import Any
 
 from specrl_jax.envs.arm.config import ArmConfig
 from specrl_jax.envs.arm.env import ArmEnv, ArmParams, ArmState
+from specrl_jax.envs.registry import Overrides
+
+#: what `make("PandaLTLReach...", **overrides)` accepts (checked by `envs.registry`)
+OVERRIDES = Overrides(ArmConfig, ArmParams, fixed=("mode", "partial", "control"))
 
 
 def make_arm(config: ArmConfig, **params: Any) -> tuple[ArmEnv, ArmParams]:
     """Build `(env, params)` from a config; `params` may override `max_steps`."""
+    OVERRIDES.check_params(params)
     env = ArmEnv(config)
-    unknown = set(params) - {"max_steps"}
-    if unknown:
-        raise ValueError(f"unknown ArmParams fields {sorted(unknown)}; accepted: ['max_steps']")
     return env, dataclasses.replace(env.default_params, **params) if params else env.default_params
 
 
 def _factory(mode: int, partial: bool, control: str):
-    config_fields = {f.name for f in dataclasses.fields(ArmConfig)}
-
     def build(**overrides: Any) -> tuple[ArmEnv, ArmParams]:
-        fixed = sorted(set(overrides) & {"mode", "partial", "control"})
-        if fixed:
-            raise ValueError(
-                f"{fixed} are fixed by the env ID (mode {mode}, partial {partial}, control "
-                f"{control!r}); pick another ID, or build a custom world with "
-                "make_arm(ArmConfig(...))"
-            )
-        config_kw = {k: v for k, v in overrides.items() if k in config_fields}
-        params_kw = {k: v for k, v in overrides.items() if k not in config_fields}
+        config_kw, params_kw = OVERRIDES.split(overrides)  # checked by `registry.make`
         config = ArmConfig(mode=mode, partial=partial, control=control, **config_kw)
         return make_arm(config, **params_kw)
 
@@ -50,6 +42,7 @@ def env_ids() -> dict[str, tuple[Any, str]]:
         f"PandaLTLReach{mode}{kind}-v0{suffix}": (
             _factory(mode, suffix == ".partial", control),
             f"Panda arm, {words}, 8 spheres, {names[mode]}{suffix}",
+            OVERRIDES,
         )
         for kind, (control, words) in controls.items()
         for mode in (0, 1)

@@ -13,32 +13,23 @@ from typing import Any
 from specrl_jax.envs.multi.config import MultiZoneConfig, ma_config
 from specrl_jax.envs.multi.env import MultiZoneEnv, MultiZoneParams, MultiZoneState
 from specrl_jax.envs.multi.wrappers import MultiAutoReset
+from specrl_jax.envs.registry import Overrides
+
+#: what `make("PointLTL0MA<n>-v0", **overrides)` accepts (checked by `envs.registry`)
+OVERRIDES = Overrides(MultiZoneConfig, MultiZoneParams, fixed=("num_agents", "robot"))
 
 
 def make_multi(config: MultiZoneConfig, **params: Any) -> tuple[MultiZoneEnv, MultiZoneParams]:
-    """Build `(env, params)` from a config; `params` may override `max_steps`."""
+    """Build `(env, params)` from a config; `params` may override `max_steps` (the collision
+    switch is the config's `collisions`)."""
+    OVERRIDES.check_params(params)
     env = MultiZoneEnv(config)
-    unknown = set(params) - {"max_steps"}
-    if unknown:
-        raise ValueError(
-            f"unknown MultiZoneParams fields {sorted(unknown)}; accepted: ['max_steps'] (the "
-            "collision switch is the config's `collisions`)"
-        )
     return env, dataclasses.replace(env.default_params, **params) if params else env.default_params
 
 
 def _factory(num_agents: int):
-    config_fields = {f.name for f in dataclasses.fields(MultiZoneConfig) if f.init}
-
     def build(**overrides: Any) -> tuple[MultiZoneEnv, MultiZoneParams]:
-        fixed = sorted(set(overrides) & {"num_agents", "robot"})
-        if fixed:
-            raise ValueError(
-                f"{fixed} are fixed by the env ID ({num_agents} Point agents); build a custom "
-                "world with make_multi(MultiZoneConfig(...))"
-            )
-        config_kw = {k: v for k, v in overrides.items() if k in config_fields}
-        params_kw = {k: v for k, v in overrides.items() if k not in config_fields}
+        config_kw, params_kw = OVERRIDES.split(overrides)  # checked by `registry.make`
         return make_multi(ma_config(num_agents, **config_kw), **params_kw)
 
     return build
@@ -47,7 +38,9 @@ def _factory(num_agents: int):
 def env_ids() -> dict[str, tuple[Any, str]]:
     """The multi-agent Zone registry entries (read by `envs.registry`)."""
     return {
-        f"PointLTL0MA{n}-v0": (_factory(n), f"{n} Point agents among 8 zones of radius 0.5")
+        f"PointLTL0MA{n}-v0": (
+            _factory(n), f"{n} Point agents among 8 zones of radius 0.5", OVERRIDES
+        )
         for n in (3, 2)
     }
 
