@@ -177,9 +177,12 @@ def train_in_run_dir(
     try:
         with open(run_dir / "metrics.jsonl", "a") as out:
             chunks = train_chunks(trainer, runner, num_seeds, chunk_updates, total, first_chunk)
+            rate_from = None  # after the first chunk: rates since it ended, without compilation
             for runner, metrics, n, done in chunks:
-                elapsed = _log_chunk(out, metrics, n, done, done_at_start, total, cfg, num_seeds,
-                                     wall_before, time.perf_counter() - start_wall, summarise, log)
+                elapsed = _log_chunk(out, metrics, n, done, rate_from or (done_at_start, 0.0),
+                                     rate_from is None, total, cfg, num_seeds, wall_before,
+                                     time.perf_counter() - start_wall, summarise, log)
+                rate_from = rate_from or (done, elapsed)
                 save_checkpoint(run_dir / CHECKPOINT, runner)
                 checkpointed = done
                 if max_wall_s is not None and elapsed > max_wall_s:
@@ -191,22 +194,25 @@ def train_in_run_dir(
     return runner
 
 
-def _log_chunk(out: Any, metrics: dict[str, Any], n: int, done: int, done_at_start: int,
-               total: int, cfg: Any, num_seeds: int, wall_before: float, elapsed: float,
-               summarise: Callable, log: Callable[[str], None]) -> float:
-    """Append a chunk's rows to `metrics.jsonl` and log a progress line; returns `elapsed`."""
+def _log_chunk(out: Any, metrics: dict[str, Any], n: int, done: int,
+               rate_from: tuple[int, float], first: bool, total: int, cfg: Any, num_seeds: int,
+               wall_before: float, elapsed: float, summarise: Callable,
+               log: Callable[[str], None]) -> float:
+    """Append a chunk's rows to `metrics.jsonl` and log a progress line (the rate since
+    `rate_from`'s (update, elapsed s); the session's `first` chunk marked as compiling); returns
+    `elapsed`."""
     rows = _rows(metrics, n, summarise)
     for i, row in enumerate(rows):
         update = done - n + i + 1
         row.update(update=update, env_steps=update * cfg.batch_size, wall_s=wall_before + elapsed)
         out.write(json.dumps(row) + "\n")
     out.flush()
-    rate = (done - done_at_start) * cfg.batch_size * num_seeds / elapsed
+    rate = (done - rate_from[0]) * cfg.batch_size * num_seeds / max(elapsed - rate_from[1], 1e-9)
     shown = {k: v for k, v in rows[-1].items() if isinstance(v, float) and k not in ("env_steps", "wall_s")}
-    first = f"  ({elapsed:.0f}s, compilation included)" if done - n == done_at_start else ""
+    note = f"  ({elapsed:.0f}s, compilation included)" if first else ""
     log(
         f"update {done}/{total}  env steps {done * cfg.batch_size:,} x {num_seeds} seeds  "
-        f"{rate:,.0f} steps/s  " + "  ".join(f"{k} {v:.3g}" for k, v in shown.items()) + first
+        f"{rate:,.0f} steps/s  " + "  ".join(f"{k} {v:.3g}" for k, v in shown.items()) + note
     )
     return elapsed
 
