@@ -63,11 +63,9 @@ def paper_specs(env: Any) -> tuple[str, Any]:
         if "/finite/" not in name:
             continue
         try:
-            compiled = [automata.compile_spec(f, env.propositions, alphabet=env.alphabet)
-                        for f in specs.suite(name)]
-        except ValueError:
+            return name, automata.compile_suite(specs.suite(name), env.propositions, env.alphabet)
+        except ValueError:  # formulas over other propositions (another variant of the family)
             continue
-        return name, automata.stack(compiled)
     raise ValueError(f"no finite paper suite of family {env.family!r} fits {env!r}")
 
 
@@ -84,6 +82,12 @@ def label(env_id: str, env: Any, loop: str, reset: str, args: argparse.Namespace
 
 def measure(env_id: str, loop: str, reset: str, num_envs: int, args: argparse.Namespace) -> None:
     env, params = make_env(env_id, args)
+    if loop == "task" and (reset == "off" or getattr(env, "num_agents", 1) > 1):
+        why = ("the task loop always resets" if reset == "off" else
+               "several agents (multi-agent tasks run through the coordinator)")
+        print(f"{env_id}: no task loop with reset {reset!r}: {why}; skipped", file=sys.stderr,
+              flush=True)
+        return
     extra: dict[str, Any] = {}
     if reset == "bank":
         if not hasattr(env, "with_map_bank"):
@@ -94,10 +98,6 @@ def measure(env_id: str, loop: str, reset: str, num_envs: int, args: argparse.Na
             env.with_map_bank(jax.random.key(args.seed + 1), params, args.bank_size))
         extra["bank_build_s"] = round(time.perf_counter() - start, 2)
     if loop == "task":
-        if reset == "off" or getattr(env, "num_agents", 1) > 1:
-            print(f"{env_id}: no task loop with reset {reset!r} (or several agents), skipped",
-                  file=sys.stderr, flush=True)
-            return
         suite, compiled = paper_specs(env)
         extra["suite"] = suite
         world = BatchedEnv(TaskEnv(env, compiled), num_envs)
