@@ -31,14 +31,12 @@ import numpy as np
 from gymnasium.vector import AutoresetMode
 
 import specrl_jax
-from specrl_jax.envs import spaces
+from specrl_jax.envs import compiled, spaces
 from specrl_jax.envs.wrappers import batch
 
 
 #: set in a child forked from a process whose JAX backends had started
 _FORKED_AFTER_JAX = False
-#: (bridge kind, env type, config[, num_envs]) -> jitted (reset, step), shared between bridges
-_COMPILED: dict[Any, tuple[Any, Any]] = {}
 
 
 def _after_fork_in_child() -> None:
@@ -64,23 +62,6 @@ def _check_not_forked() -> None:
             "fork. Use gymnasium.make_vec(env_id, num_envs) (one compiled call for all worlds), "
             "or vectorization_mode='async' with vector_kwargs={'context': 'spawn'}"
         )
-
-
-def _shared(key: tuple, build: Any) -> tuple[Any, Any]:
-    """`build()`'s jitted functions, made once per hashable `key`."""
-    try:
-        hash(key)
-    except TypeError:
-        return build()
-    if key not in _COMPILED:
-        _COMPILED[key] = build()
-    return _COMPILED[key]
-
-
-def _config_key(env: Any) -> Any:
-    """What identifies the world's compiled code: its type and frozen config (or itself)."""
-    config = getattr(env, "config", None)
-    return env if config is None else (type(env), config)
 
 
 def to_gymnasium_space(space: Any) -> gymnasium.spaces.Space:
@@ -144,8 +125,8 @@ class GymEnv(gymnasium.Env):
                 info["propositions"],
             )
 
-        self._reset, self._step = _shared(
-            ("single", _config_key(env)), lambda: (jax.jit(reset), jax.jit(step))
+        self._reset, self._step = compiled.shared(
+            env, "gym single", lambda: (jax.jit(reset), jax.jit(step))
         )
 
     def reset(
@@ -222,8 +203,8 @@ class GymVectorEnv(gymnasium.vector.VectorEnv):
             final = original(info["final_observation"])
             return original(obs), state, reward, terminated, truncated, info["propositions"], final
 
-        self._reset, self._step = _shared(
-            ("vector", _config_key(self.env), num_envs), lambda: (jax.jit(reset), jax.jit(step))
+        self._reset, self._step = compiled.shared(
+            self.env, ("gym vector", num_envs), lambda: (jax.jit(reset), jax.jit(step))
         )
 
         def reset_each(keys: jax.Array, params: Any) -> tuple:
