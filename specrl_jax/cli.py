@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import argparse
 import ast
-import dataclasses
-import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -299,7 +297,7 @@ def train_command(args: argparse.Namespace) -> int:
     announce_world_loading()
     world_family = experiment.family(args.env)
     total = args.total_steps or families.default_total_steps(platform)
-    overrides = experiment.default_overrides(platform, total, world_family)
+    overrides = experiment.default_overrides(platform, total, world_family, args.method)
     overrides.update({k: v for k, v in (("num_envs", args.num_envs), ("num_steps", args.num_steps))
                       if v is not None})
     out = Path(args.out or f"runs/{args.method}")
@@ -356,7 +354,7 @@ def run_command(args: argparse.Namespace) -> int:
         params = experiment.load_params("genz", "LetterLTL0-v0", args.params, args.seeds or 1)
         summary = {"loaded_from": args.params}
     else:
-        overrides = experiment.default_overrides("gpu" if gpu else "cpu", total)
+        overrides = experiment.default_overrides("gpu" if gpu else "cpu", total, "letter", "genz")
         if not gpu:  # a short budget: fewer epochs per update keeps it to minutes on two cores
             overrides.update(num_envs=32, num_steps=64, update_epochs=10)
         config = experiment.check_settings("genz", "LetterLTL0-v0", overrides)
@@ -482,7 +480,6 @@ def report_command(args: argparse.Namespace) -> int:
     written = report.render(store=args.store, out=args.out, figures=args.figures)
     print("wrote " + ", ".join(str(p) for p in written))
     return 0
-
 
 
 @command(

@@ -64,13 +64,16 @@ def suites_for(env: str | Any) -> tuple[str, ...]:
 
 
 def default_overrides(device_kind: str, total_steps: int | None = None,
-                      world_family: str = "letter") -> dict[str, Any]:
+                      world_family: str = "letter", method: str | None = None) -> dict[str, Any]:
     """The training shape of a world family on a device kind (`families.WorldFamily.rollout`):
     LetterWorld the reference's 16 x 128 on a CPU, 256 x 128 on an accelerator; ZoneEnv / Arm
     16 x 128 on a CPU, 512 x 128 = 65,536 samples per update in minibatches of 2,048 on an
     accelerator (the reference's update size, 16 x 4096). The per-sample settings are unchanged
-    (docs/fidelity.md)."""
+    (docs/fidelity.md), but for `method`'s own accelerator settings
+    (`MethodSpec.accelerator_ppo`: GenZ-LTL's epochs capped at 10)."""
     shape: dict[str, Any] = families.get(world_family).rollout_shape(device_kind)
+    if method is not None and device_kind != "cpu":
+        shape.update(get_method(method).accelerator_ppo)
     if total_steps is not None:
         shape["total_timesteps"] = int(total_steps)
     return shape

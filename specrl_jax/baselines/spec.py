@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +47,8 @@ class MethodSpec:
         pretrain: `(world, family, key, steps, log, **ppo_shape) -> encoder parameters`, where
             the method pretrains a formula encoder (`specrl-jax pretrain`).
         shipped_encoder: `(family) -> Path`, where the package keeps its pretrained encoder.
+        accelerator_ppo: PPO settings that replace the method's on an accelerator's wide rollout
+            (`experiment.default_overrides`; each a departure in docs/fidelity.md).
     """
 
     name: str
@@ -65,6 +67,7 @@ class MethodSpec:
     coordinator_agent: Callable[..., Any] | None = None
     pretrain: Callable[..., Any] | None = None
     shipped_encoder: Callable[[str], Path] | None = None
+    accelerator_ppo: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
     def check_options(self, options: dict[str, Any] | None) -> None:
         """A ValueError naming the options this method does not take, listing those it does."""

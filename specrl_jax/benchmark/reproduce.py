@@ -45,18 +45,19 @@ Log = Callable[[str], None]
 
 def default_train(cell: Cell, run_dir: Path, log: Log) -> tuple[Any, dict[str, Any]]:
     """Train `cell`'s seeds side by side with the family's shape on this device
-    (`experiment.default_overrides`) and the cell's PPO overrides; LetterWorld resets from a
-    bank of 65,536 exactly sampled maps on an accelerator (4,096 on a CPU)."""
+    (`experiment.default_overrides`, with the method's accelerator settings) and the cell's PPO
+    overrides; LetterWorld resets from a bank of `experiment.default_map_bank` exactly sampled
+    maps (65,536 on an accelerator, 4,096 on a CPU)."""
     import jax
 
     from specrl_jax.baselines import experiment
 
     platform = jax.devices()[0].platform
     overrides = experiment.default_overrides(platform, cell.total_steps,
-                                             experiment.family(cell.env_id))
+                                             experiment.family(cell.env_id), cell.method)
     overrides.update(dict(cell.ppo))
     return experiment.train(cell.method, cell.env_id, run_dir, overrides, cell.seeds, log=log,
-                            map_bank=65536 if platform != "cpu" else 4096,
+                            map_bank=experiment.default_map_bank(platform),
                             env_options=dict(cell.env_options) or None,
                             method_options=cell.options() or None)
 
