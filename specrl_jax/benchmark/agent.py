@@ -106,6 +106,9 @@ class TrainedRun:
     method_options: dict[str, Any]
     source: str
     seeds: tuple[int, ...]  # the evaluation seed of each entry of `params`
+    #: a store cell that runs another cell's parameters on every agent of a multi-agent world
+    #: under the central coordinator (`benchmark.reproduce.evaluate_coordinator`)
+    coordinator_cell: str | None = None
 
     @property
     def name(self) -> str:
@@ -218,7 +221,13 @@ def _store_cell(name: str, env_id: str) -> TrainedRun:
     cell = grid.cell(name)
     _same_world(cell.env_id, env_id, name)
     store = Store()
-    if not cell.trains or not store.params_path(cell).exists():
+    if not cell.trains:  # the coordinator over a single-agent cell's parameters
+        if not store.params_path(cell.params_from).exists():
+            raise ValueError(f"the results store holds no trained parameters for "
+                             f"{cell.params_from}, which {name} runs")
+        return TrainedRun(cell.method, env_id, store.load_params(cell.params_from), {}, {},
+                          f"{name} (seed 1 of {cell.params_from})", (1,), coordinator_cell=name)
+    if not store.params_path(cell).exists():
         raise ValueError(f"the results store holds no trained parameters for {name}")
     return TrainedRun(cell.method, env_id, store.load_params(cell), dict(cell.env_options),
                       cell.options(), f"{name} (seed 1)", (1,))
@@ -294,6 +303,15 @@ def evaluate(agent: Agent | TrainedRun, env_id: str, suites: Sequence[str], epis
     from specrl_jax.eval.suites import evaluate_suites
     from specrl_jax.tasks import TaskEnv
 
+    if isinstance(agent, TrainedRun) and agent.coordinator_cell is not None:
+        from specrl_jax.benchmark import grid
+        from specrl_jax.benchmark.reproduce import evaluate_coordinator
+
+        if horizon is not None or agent.seeds != tuple(range(1, len(agent.seeds) + 1)):
+            raise ValueError(f"{agent.source} runs each suite's own horizon on seeds 1..N")
+        cell = dataclasses.replace(grid.cell(agent.coordinator_cell), seeds=len(agent.seeds),
+                                   episodes=episodes)
+        return evaluate_coordinator(cell, agent.params, suites, log)
     if isinstance(agent, TrainedRun):
         run = agent
         return experiment.evaluate(run.method, env_id, run.params, suites, episodes, log=log,

@@ -114,12 +114,16 @@ def world_envs(world: str) -> tuple[str, list[tuple[str, tuple[str, ...]]]]:
 
 
 def default_worlds(policy: Any) -> tuple[str, ...]:
-    """The worlds a policy is scored on by default: a trained run's own world, the families an
-    `Agent` declares, else every benchmark world."""
+    """The worlds a policy is scored on by default: a trained run's (or store cell's) own world,
+    the families an `Agent` declares, else every benchmark world."""
     if isinstance(policy, str):
+        from specrl_jax.benchmark import grid
+
         config = Path(policy) / "config.json"
         if config.exists():
             return (json.loads(config.read_text())["env"],)
+        if policy in grid.BY_NAME:
+            return (grid.cell(policy).env_id,)
     if isinstance(policy, agents.Agent) and policy.worlds is not None:
         return tuple(w for w, (family, _) in WORLDS.items() if family in policy.worlds)
     return tuple(WORLDS)

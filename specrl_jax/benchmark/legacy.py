@@ -2,8 +2,8 @@
 
 `evaluate(policy_fn, env_id, suites, episodes, seeds)` runs the same episodes as the JAX
 evaluator (`eval.evaluate`): episode (seed s, spec k, episode e) starts its world from the key the
-JAX evaluator uses, so both see the same layouts, and the automaton is stepped by the same task
-source on the labels the Gymnasium vector env reports. The world is stepped by
+JAX evaluator uses, so both see the same layouts, and the automaton takes the task source's step
+(`automata.step_in_batch`) on the labels the Gymnasium vector env reports. The world is stepped by
 `specrl_jax.gym.GymVectorEnv` (the original benchmark's observation layout, numpy in and out) and
 the policy is a plain callable:
 
@@ -18,6 +18,7 @@ every world on every call).
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
@@ -31,7 +32,6 @@ from specrl_jax.eval.evaluate import EvalResult, check_seeds
 from specrl_jax.eval.metrics import EpisodeTable
 from specrl_jax.eval.report import SuiteResult
 from specrl_jax.eval.suites import check_suites, suite_horizon
-from specrl_jax.tasks.sources import AutomatonSource
 
 #: episodes stepped side by side by default
 DEFAULT_NUM_ENVS = 2048
@@ -56,33 +56,46 @@ class LegacyTask(NamedTuple):
     proposition_names: tuple[str, ...]
 
 
+def _reset_key(seed: jax.Array, episode: jax.Array) -> jax.Array:
+    key = jax.random.fold_in(jax.random.key(seed), episode)
+    key_reset = jax.random.split(key, 3)[0]
+    return jax.random.split(key_reset)[0]
+
+
+_reset_keys = jax.jit(jax.vmap(_reset_key))
+
+
 def episode_reset_keys(seeds: np.ndarray, episodes: np.ndarray) -> jax.Array:
     """The world-reset keys the JAX evaluator uses for episodes `(seeds[i], episodes[i])`
     (`eval.evaluate.run_episode`, then `TaskEnv.reset`)."""
-
-    def one(seed, episode):
-        key = jax.random.fold_in(jax.random.key(seed), episode)
-        key_reset = jax.random.split(key, 3)[0]
-        return jax.random.split(key_reset)[0]
-
-    return jax.jit(jax.vmap(one))(jnp.asarray(seeds, jnp.uint32), jnp.asarray(episodes))
+    return _reset_keys(jnp.asarray(seeds, jnp.uint32), jnp.asarray(episodes))
 
 
-def _automaton(compiled: Any, alphabet: Any) -> tuple[Callable, Callable]:
-    """Jitted `init(spec_index[N]) -> q[N]` and `step(spec_index, q, labels) -> (q, accepted,
-    success, violation)`, the task source of the JAX evaluator."""
-    source = AutomatonSource(compiled, alphabet)
-    key = jax.random.key(0)
+@jax.jit
+def _initial_states(compiled: Any, index: jax.Array) -> jax.Array:
+    """int32[N]: each episode's initial automaton state (`AutomatonSource.reset`)."""
+    return compiled.init[index].astype(jnp.int32)
 
-    def init(index):
-        return source.reset(key, None, index).q
 
-    def step(index, q, label):
-        task = source.reset(key, None, index).replace(q=q)
-        task, events = source.step(key, task, label, None, jnp.zeros((), bool), jnp.int32(-1))
-        return task.q, events.accepted, events.success, events.violation
+@jax.jit
+def _step_automata(compiled: Any, index: jax.Array, q: jax.Array, label: jax.Array) -> tuple:
+    """One automaton step per episode on its label, as `AutomatonSource.step` (no epsilon):
+    `(q, accepted, success, violation)`, success only for finite-horizon specs."""
 
-    return jax.jit(jax.vmap(init)), jax.jit(jax.vmap(step))
+    def one(spec_index, state, props):
+        q_next, accepted, success, violation = automata.step_in_batch(
+            compiled, spec_index, state, props, jnp.int32(-1), None)
+        return q_next, accepted, success & compiled.is_finite[spec_index], violation
+
+    return jax.vmap(one)(index, q, label)
+
+
+@functools.lru_cache(maxsize=8)
+def _vector_env(env_id: str, num_envs: int) -> Any:
+    """One Gymnasium vector env per (world, width) in a process: its programs compile once."""
+    import specrl_jax.gym as gym_bridge
+
+    return gym_bridge.GymVectorEnv(env_id, num_envs=num_envs)
 
 
 def evaluate(policy_fn: Callable[[Any, LegacyTask], Any], env_id: str, suites: Sequence[str],
@@ -102,7 +115,6 @@ def evaluate(policy_fn: Callable[[Any, LegacyTask], Any], env_id: str, suites: S
     Returns:
         One `SuiteResult` per suite, with the JAX backend's metrics.
     """
-    import specrl_jax.gym as gym_bridge
     from specrl_jax.envs.registry import make
 
     world, params = make(env_id)
@@ -117,14 +129,14 @@ def evaluate(policy_fn: Callable[[Any, LegacyTask], Any], env_id: str, suites: S
     # one vector env (one compiled step) for every group: as wide as the largest needs
     lanes = max(len(seeds) * sum(len(specs.suite(n)) for n in names) * episodes
                 for names in names_by_horizon.values())
-    vec = gym_bridge.GymVectorEnv(env_id, num_envs=min(num_envs or DEFAULT_NUM_ENVS, lanes))
+    vec = _vector_env(env_id, min(num_envs or DEFAULT_NUM_ENVS, lanes))
     results = {}
     for steps, names in names_by_horizon.items():
         formulas = [f for name in names for f in specs.suite(name)]
         compiled = automata.compile_suite(formulas, world.propositions, world.alphabet)
         vec.params = params.replace(max_steps=steps)
         start = time.perf_counter()
-        table = _run(policy_fn, vec, compiled, formulas, seeds, episodes, steps, world.alphabet)
+        table = _run(policy_fn, vec, compiled, formulas, seeds, episodes, steps)
         log(f"gymnasium backend: {len(seeds)} seeds x {len(formulas)} specs x {episodes} episodes"
             f" x {steps} steps in {time.perf_counter() - start:.1f}s")
         result = EvalResult(env_id=env_id, spec_names=tuple(formulas),
@@ -140,12 +152,11 @@ def evaluate(policy_fn: Callable[[Any, LegacyTask], Any], env_id: str, suites: S
 
 
 def _run(policy_fn: Callable, vec: Any, compiled: Any, formulas: Sequence[str],
-         seeds: Sequence[int], episodes: int, horizon: int, alphabet: Any) -> EpisodeTable:
+         seeds: Sequence[int], episodes: int, horizon: int) -> EpisodeTable:
     """Every (seed, spec, episode) in waves of `vec.num_envs`; the table `[S, K, E]`."""
     num_specs = len(formulas)
     grid = np.stack(np.meshgrid(np.arange(len(seeds)), np.arange(num_specs), np.arange(episodes),
                                 indexing="ij"), axis=-1).reshape(-1, 3)  # lanes: (seed, spec, ep)
-    init, step = _automaton(compiled, alphabet)
     width = vec.num_envs
     out = {name: np.zeros(len(grid), dtype) for name, dtype in
            (("success", bool), ("violation", bool), ("steps", np.int32), ("accepting", np.int32))}
@@ -157,8 +168,8 @@ def _run(policy_fn: Callable, vec: Any, compiled: Any, formulas: Sequence[str],
         keys = episode_reset_keys(seed_values[wave[:, 0]], wave[:, 2])
         obs, _ = vec.reset(options={"keys": keys})
         index = jnp.asarray(wave[:, 1], jnp.int32)
-        q = init(index)
-        outcome = _run_wave(policy_fn, vec, obs, step, index, q, formulas, horizon)
+        q = _initial_states(compiled, index)
+        outcome = _run_wave(policy_fn, vec, obs, compiled, index, q, formulas, horizon)
         for name, values in outcome.items():
             out[name][begin:begin + count] = values[:count]
     shape = (len(seeds), num_specs, episodes)
@@ -167,7 +178,7 @@ def _run(policy_fn: Callable, vec: Any, compiled: Any, formulas: Sequence[str],
                         np.zeros(shape, bool))
 
 
-def _run_wave(policy_fn: Callable, vec: Any, obs: Any, step: Callable, index: jax.Array,
+def _run_wave(policy_fn: Callable, vec: Any, obs: Any, compiled: Any, index: jax.Array,
               q: jax.Array, formulas: Sequence[str], horizon: int) -> dict[str, np.ndarray]:
     """One wave of `vec.num_envs` episodes from their first observation `obs`; an episode stops
     counting once it ends (its world may run on, its steps are not read)."""
@@ -188,7 +199,7 @@ def _run_wave(policy_fn: Callable, vec: Any, obs: Any, step: Callable, index: ja
         obs, _, terminated, _, info = vec.step(np.asarray(actions))
         label = np.asarray(info["propositions"], bool)
         q_next, accepted, done_success, done_violation = jax.device_get(
-            step(index, q, jnp.asarray(label)))
+            _step_automata(compiled, index, q, jnp.asarray(label)))
         steps += alive
         accepting += alive & accepted
         success |= alive & done_success
