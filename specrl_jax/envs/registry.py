@@ -62,7 +62,7 @@ class Overrides:
         if fixed:
             raise ValueError(
                 f"{fixed} are fixed by the env ID {env_id!r}; pick another ID, or build a custom "
-                f"world from a {self.config.__name__}"
+                f"world from your own {self.config.__name__}"
             )
         config_fields = set(self.config_fields)
         config_kw = {k: v for k, v in overrides.items() if k in config_fields}
