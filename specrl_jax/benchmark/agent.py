@@ -300,7 +300,7 @@ def evaluate(agent: Agent | TrainedRun, env_id: str, suites: Sequence[str], epis
     its own evaluation seed (`seeds` is then ignored). Returns one `SuiteResult` per suite."""
     from specrl_jax.baselines import experiment
     from specrl_jax.envs.registry import make
-    from specrl_jax.eval.suites import evaluate_suites
+    from specrl_jax.eval.suites import check_suites, evaluate_suites
     from specrl_jax.tasks import TaskEnv
 
     if isinstance(agent, TrainedRun) and agent.coordinator_cell is not None:
@@ -323,6 +323,7 @@ def evaluate(agent: Agent | TrainedRun, env_id: str, suites: Sequence[str], epis
         raise ValueError(f"policy {agent.name!r} does not declare support for {family} worlds "
                          f"(worlds={agent.worlds}, multi_agent={agent.multi_agent}, "
                          f"coordinator_agent={'set' if agent.coordinator_agent else 'None'})")
+    check_suites(suites, world)  # before compiling any formula: which propositions are missing
     agent, world = _for_world(agent, world, suites)
     from specrl_jax import automata, specs
 
