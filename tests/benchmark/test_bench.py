@@ -54,6 +54,14 @@ def user_module(tmp_path, monkeypatch):
         def with_epsilon(world):
             return lambda p, o, s, k: (jnp.int32(0), jnp.bool_(False))
 
+        def numpy_policy(world):  # the gymnasium backend's: numpy in, numpy out
+            def act(obs, task):
+                ap = obs[..., :-1]  # the original's layout: letters, then the agent
+                centre = ap.shape[1] // 2
+                return ((ap[:, centre - 1].sum(axis=(1, 2)) + 2 * ap[:, :, centre + 1].sum(
+                    axis=(1, 2)) + task.q) % 4).astype("int64")
+            return act
+
         NOT_CALLABLE = 3
     """))
     monkeypatch.syspath_prepend(str(tmp_path))
@@ -163,24 +171,22 @@ def _jax_policy(params, obs, task_state, key):
     return ((ap[centre - 1].sum() + 2 * ap[:, centre + 1].sum() + task_state.q) % 4).astype(jnp.int32)
 
 
-def _numpy_policy(obs, task):
-    ap = obs[..., :-1]  # the original's layout: letters, then the agent
-    centre = ap.shape[1] // 2
-    return ((ap[:, centre - 1].sum(axis=(1, 2)) + 2 * ap[:, :, centre + 1].sum(axis=(1, 2))
-            + task.q) % 4).astype(np.int64)  # uint64 + int32 would be float64
-
-
 @pytest.mark.slow  # the evaluator and the vector env's step to compile
-def test_the_gymnasium_backend_scores_as_the_jax_backend():
-    """One deterministic policy, written for JAX and for numpy: the same metrics per spec and
-    seed on both backends (the same layouts, the same automaton steps)."""
-    options = {"worlds": ["LetterLTL0-v0"], "suites": [IND], "seeds": 2, "episodes": 3,
-               "horizon": 12, "log": lambda line: None}
-    compiled = bench.score(_jax_policy, **options)
-    legacy = bench.score(_numpy_policy, backend="gymnasium", num_envs=16, **options)
-    assert (compiled.backend, legacy.backend) == ("jax", "gymnasium")
-    (a,), (b,) = compiled.worlds[0].results, legacy.worlds[0].results
-    for field in ("success", "violation", "steps", "num_accepting"):
-        np.testing.assert_array_equal(getattr(a.result.table, field),
-                                      getattr(b.result.table, field))
+def test_the_gymnasium_backend_scores_as_the_jax_backend(user_module, tmp_path):
+    """One deterministic policy, written for JAX and for numpy (`user_policies:numpy_policy`
+    through `specrl-jax bench --backend gymnasium`): the same episodes on both backends (the
+    same layouts, the same automaton steps), so the same metrics per spec and seed."""
+    compiled = bench.score(_jax_policy, ["LetterLTL0-v0"], [IND], 2, 3, horizon=12,
+                           log=lambda line: None)
+    (a,) = compiled.worlds[0].results
     assert a.result.table.success.any() or a.result.table.violation.any()  # not all timeouts
+    assert cli.main(["bench", "--backend", "gymnasium", "--policy", "user_policies:numpy_policy",
+                     "--worlds", "LetterLTL0-v0", "--suite", IND, "--seeds", "2", "--episodes",
+                     "3", "--horizon", "12", "--out", str(tmp_path), "--no-progress"]) == 0
+    document = json.loads((tmp_path / "results.json").read_text())
+    assert (compiled.backend, document["backend"]) == ("jax", "gymnasium")
+    assert "Backend gymnasium" in (tmp_path / "tables.md").read_text()
+    (b,) = document["results"]
+    for metric, values in a.result.per_seed().items():
+        got = np.asarray(b["per_seed"][metric], float)  # JSON null: no episode to average
+        np.testing.assert_array_equal(got, values, err_msg=metric)
