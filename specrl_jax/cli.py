@@ -1,5 +1,5 @@
-"""The `specrl-jax` command line: `envs`, `specs`, `eval`, `train`, `run` (one function per
-subcommand).
+"""The `specrl-jax` command line: `envs`, `specs`, `eval`, `bench`, `train`, `run`, ... (one
+function per subcommand).
 
 A subcommand is one function taking the parsed arguments, registered with its options by
 `@command(name, help, arg(...), ...)`; `main` builds the parser from the registry.
@@ -8,6 +8,8 @@ A subcommand is one function taking the parsed arguments, registered with its op
     specrl-jax specs [--prefix letter/]
     specrl-jax eval --env LetterLTL0-v0 --policy oracle --suite letter/finite/ind \\
         --seeds 5 --episodes 100 --out results/
+    specrl-jax eval --env LetterLTL0-v0 --policy runs/genz --suite letter/finite/ood --seed 2
+    specrl-jax bench --policy my_package.agents:make_agent --worlds letter,zone --out bench/
     specrl-jax train --method genz --env PointLTL0-v0 --seeds 5
     specrl-jax run
 """
