@@ -123,7 +123,7 @@ def test_link_sphere_distances_match_mujoco_c_geom_distance(env):
 
 def test_link_sphere_distances_match_pybullet_less_its_collision_margin(env):
     """PyBullet's own `getClosestPoints` (the original's mode-1 labels and features; stored by
-    `benchmarks/arm_vs_pybullet.py --write-reference`: 24 poses, 8 spheres of 0.06 m near the
+    `benchmarks/lab/arm_vs_pybullet.py --write-reference`: 24 poses, 8 spheres of 0.06 m near the
     grasp target) against the env's distances: PyBullet's are ours less its collision margin,
     1.0 mm (measured 0.971-1.001 mm), on every pair within 10 cm, penetrating ones included."""
     reference = np.load(Path(__file__).parent / "data" / "arm_pybullet_rollouts.npz")

@@ -87,7 +87,7 @@ def test_ik_matches_pybullets_iteration_on_mujoco_c(ik):
 
 def test_ik_and_grasp_target_match_pybullet_itself(ik):
     """PyBullet's `calculateInverseKinematics` and grasp-target FK (stored by
-    `benchmarks/arm_vs_pybullet.py --write-reference`: 32 configurations within 0.3 rad of the
+    `benchmarks/lab/arm_vs_pybullet.py --write-reference`: 32 configurations within 0.3 rad of the
     neutral pose, targets up to 5 cm away, gripper down) against ours: measured 6e-7 rad and
     3e-7 m."""
     reference = np.load(Path(__file__).parent / "data" / "arm_pybullet_rollouts.npz")

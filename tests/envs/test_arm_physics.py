@@ -284,7 +284,7 @@ def test_tracking_gains_match_the_original_under_random_actions(physics):
 
 def test_motor_matches_pybullet_on_the_same_actions(physics):
     """PyBullet's own arm (the original's engine; its rollouts written by
-    `benchmarks/arm_vs_pybullet.py --write-reference`: 4 episodes x 100 uniform random actions
+    `benchmarks/lab/arm_vs_pybullet.py --write-reference`: 4 episodes x 100 uniform random actions
     from the neutral pose) against ours under the same actions: per-joint tracking gain and lag
     to 0.01 (measured: 0.001), joint angles within 3e-3 rad over 10 steps (measured 1.5e-3) and
     2e-2 rad over 100 (measured 1.0e-2)."""
@@ -301,7 +301,7 @@ def test_motor_matches_pybullet_on_the_same_actions(physics):
 def test_joint_limits_hold_with_the_motor_as_in_pybullet(physics):
     """Saturated actions (all +1, all -1, alternating; 60 steps) drive joints into their limits,
     where Bullet solves the limit and motor rows together: PyBullet's rollouts (stored by
-    `benchmarks/arm_vs_pybullet.py`) against ours within 0.03 rad (measured 0.011; with the
+    `benchmarks/lab/arm_vs_pybullet.py`) against ours within 0.03 rad (measured 0.011; with the
     limits left to MuJoCo's soft constraint after the motor, 0.29), every joint within 1e-3 rad
     of its range (measured 1e-4; soft limits: 0.035)."""
     reference = np.load(PYBULLET_ROLLOUTS)
@@ -316,7 +316,7 @@ def test_joint_limits_hold_with_the_motor_as_in_pybullet(physics):
 def test_motor_holds_against_the_table_as_in_pybullet():
     """Constant actions that press the arm into the table for 60 steps (joint 2 forward, with
     joint 4 or 6; PyBullet's rollouts with the original's table and floor, stored by
-    `benchmarks/arm_vs_pybullet.py`) against ours with table contacts: within 0.1 rad (measured
+    `benchmarks/lab/arm_vs_pybullet.py`) against ours with table contacts: within 0.1 rad (measured
     0.063; with the contacts unseen by the motor solve, 1.5: the table turned joint 6, which
     holds still in PyBullet, by 0.94 rad)."""
     reference = np.load(PYBULLET_ROLLOUTS)

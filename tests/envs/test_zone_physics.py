@@ -1,6 +1,6 @@
 """Physics of the Zone robots: facts of the original, the effect of contact pruning and solver
 settings (MuJoCo C), MuJoCo C's capsule contact frame in MJX, and MJX against MuJoCo C on our
-models (the Ant over a few env steps here; longer in benchmarks/zone_physics.py)."""
+models (the Ant over a few env steps here; longer in benchmarks/lab/zone_physics.py)."""
 
 from __future__ import annotations
 
@@ -278,7 +278,8 @@ def test_mjx_ant_contact_accelerations_agree_with_c():
     """At a settled Ant state (4 foot contacts, capsules ~10 degrees from the floor normal), our
     MJX forward pass equals MuJoCo C's with the original's pyramidal cone and with an elliptic
     one. MJX 3.17's own capsule frame (world y as first tangent) departs by ~12% of qacc under
-    the pyramidal cone, which is not rotation-invariant (benchmarks/zone_contact_diff.py)."""
+    the pyramidal cone, which is not rotation-invariant (benchmarks/zone_contact_diff.py, in git
+    history)."""
     variants = (("pyramidal", True, 0), ("elliptic", True, 0), ("pyramidal", False, 0),
                 ("pyramidal", True, 4))
     for cone, c_frame, cap in variants:

@@ -10,7 +10,7 @@ paper's PointLTL0 figure reproduces (docs/fidelity.md); "rad" is the original's:
 the end of the episode when every DFA accepts, -1 and the end when one can no longer accept.
 Every observation carries the 32-d embedding of the advanced, minimised conjunction by the
 pretrained GATv2 encoder (`rad_encoder`, parameters shipped in
-`baselines/data/rad_encoder_<family>.msgpack`, made by `benchmarks/rad_pretrain.py`), frozen
+`baselines/data/rad_encoder_<family>.msgpack`, made by `specrl-jax pretrain --method rad`), frozen
 (the original's `--freeze`), so PPO never backpropagates into it. Being frozen, the encoder runs once per reachable state of the bank when the method is
 built (`rad_table`), and the task loop reads the embedding off that table. The network is
 LTL2Action's: observation encoder (grid CNN, vector MLP [128, 64] ReLU, image CNN) concatenated

@@ -6,7 +6,8 @@ normal falls back to a fixed direction (`mju_makeFrame` tests the axis before pr
 MJX 3.17's collider falls back to world y whenever the *projected* axis is shorter than 0.5,
 i.e. for every capsule within 30 degrees of the normal, which is how the Ant stands on its foot
 tips (~10 degrees). The original's pyramidal friction cone is not rotation-invariant, so the
-rotated frame changes the contact forces (benchmarks/zone_contact_diff.py, docs/fidelity.md).
+rotated frame changes the contact forces (docs/fidelity.md; benchmarks/zone_contact_diff.py in
+git history).
 
 MJX picks colliders from a module-level table, `collision_driver._COLLISION_FUNC`, and reads it
 only while JAX traces `collision_driver.collision` (no MJX function on that path is cached by
