@@ -17,36 +17,21 @@ Each figure is printed as one JSON line and appended to `--out`.
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
 import os
 import re
-import shlex
 import sys
 import tempfile
 import time
-from typing import Any
 
 import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+import harness  # noqa: E402  (the benchmark harness beside this script)
 
 #: world -> the store cell whose parameters are scored
 CELLS = {"letter": "LetterLTL0-v0/genz", "zone": "PointLTL0-v0/genz",
          "arm": "PandaLTLReach0Joints-v0/genz", "multi_agent": "PointLTL0MA2-v0/genz+coordinator"}
-
-
-def emit(figure: str, value: Any, out: str | None, **extra: Any) -> None:
-    import jax
-
-    from specrl_jax.eval.report import versions
-
-    row = {"figure": figure, "value": value, "device": str(jax.devices()[0].device_kind),
-           "versions": versions(), "date": datetime.date.today().isoformat(),
-           "command": shlex.join(["python", *sys.argv]), **extra}
-    line = json.dumps(row, default=str)
-    print(line, flush=True)
-    if out:
-        with open(out, "a") as f:
-            f.write(line + "\n")
 
 
 def time_bench(worlds: list[str], seeds: int, episodes: int, out: str | None) -> None:
@@ -61,9 +46,9 @@ def time_bench(worlds: list[str], seeds: int, episodes: int, out: str | None) ->
                                  out=report_dir, log=lambda line: None)
             wall = time.perf_counter() - start
         (score,) = report.worlds
-        emit(f"specrl-jax bench wall time with compilation, {world} ({cell}), s", round(wall, 1),
-             out, suites=len(score.results), seeds=seeds, episodes=episodes,
-             summary=score.line())
+        harness.emit(harness.row(
+            f"specrl-jax bench wall time with compilation, {world} ({cell}), s", round(wall, 1),
+            suites=len(score.results), seeds=seeds, episodes=episodes, summary=score.line()), out)
 
 
 def _jax_policy(params, obs, task_state, key):
@@ -99,9 +84,10 @@ def time_backends(seeds: int, episodes: int, num_envs: int, out: str | None) -> 
         wall = time.perf_counter() - start
         # the episodes alone: the evaluator's (or the vector env's waves') own timing lines
         run = sum(float(m) for m in re.findall(r"episodes x \d+ steps in ([\d.]+)s", "\n".join(lines)))
-        emit(f"{backend} backend, LetterWorld {suite}, episodes/s", round(count / max(run, 1e-9), 1),
-             out, episodes=count, episodes_s=round(run, 2), wall_s_second_call=round(wall, 2),
-             wall_s_first_call=round(warm, 1), num_envs=num_envs)
+        harness.emit(harness.row(
+            f"{backend} backend, LetterWorld {suite}, episodes/s", round(count / max(run, 1e-9), 1),
+            num_envs, episodes=count, episodes_s=round(run, 2), wall_s_second_call=round(wall, 2),
+            wall_s_first_call=round(warm, 1)), out)
 
 
 def main(argv: list[str] | None = None) -> int:

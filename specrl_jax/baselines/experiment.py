@@ -1,5 +1,5 @@
 """Train a baseline on any single-agent world and evaluate it on the paper's suites: the pipeline
-behind `specrl-jax train`, `specrl-jax run` and `benchmarks/train_baselines.py`.
+behind `specrl-jax train`, `specrl-jax run` and `specrl-jax reproduce`.
 
 Seeds follow the paper's protocol: `num_seeds` independent trainings (side by side under
 `vmap`), each evaluated with its own seed on `episodes` fresh layouts per spec; tables report the
