@@ -131,3 +131,15 @@ def test_safety_rule_scales_the_sum_of_the_two_primitives_not_each():
                                   True, jax.random.key(0), _primitives(means), jnp.zeros(2),
                                   temperature=1.25)
         np.testing.assert_allclose(action, want, atol=1e-6)
+
+
+def test_train_primitives_runs_the_four_directions_through_the_run_driver():
+    """The four primitives train side by side on the driver's seed axis: parameters with a
+    leading axis of 4, finite, one logged line of speeds per direction."""
+    lines = []
+    cfg = prim.ppo_config(8 * 32 * 3, num_envs=8, num_steps=32, num_minibatches=2, update_epochs=2)
+    params = prim.train_primitives(_PlaneWorld(), _Params(), jax.random.key(0), cfg, lines.append)
+    leaves = jax.tree.leaves(params)
+    assert all(leaf.shape[0] == len(prim.DIRECTIONS) for leaf in leaves)
+    assert all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in leaves)
+    assert len(lines) == 1 and lines[0].startswith("direction primitives: 3 updates")

@@ -26,6 +26,7 @@ from flax import struct
 from specrl_jax.baselines.ppo.networks import MLP, DiagGaussian, PolicyOutput, critic, dense
 from specrl_jax.baselines.ppo.rollout import StepResult
 from specrl_jax.baselines.ppo.train import Method, PPOConfig, make_train
+from specrl_jax.baselines.runs import init_seeds, train_chunks
 from specrl_jax.envs.spaces import Discrete
 from specrl_jax.envs.wrappers import Wrapper, reset_done
 
@@ -146,13 +147,12 @@ def train_primitives(world: Any, params: Any, key: jax.Array, config: PPOConfig,
     method = PrimitiveMethod(direction_env(world, params),
                              PrimitiveNetwork(int(world.action_space.shape[0])))
     trainer = make_train(config, method)
-
-    def run(key):
-        runners = jax.vmap(trainer.init)(jax.random.split(key, len(DIRECTIONS)))
-        runners = runners.replace(task_params=jnp.arange(len(DIRECTIONS), dtype=jnp.int32))
-        return jax.vmap(lambda r: trainer.updates(r, config.num_updates))(runners)
-
-    runners, metrics = jax.device_get(jax.jit(run)(key))
+    runners = init_seeds(trainer, key, len(DIRECTIONS))
+    runners = runners.replace(task_params=jnp.arange(len(DIRECTIONS), dtype=jnp.int32))
+    # the run driver, the four directions on its seed axis, all updates in one chunk
+    for runners, metrics, _, _ in train_chunks(trainer, runners, len(DIRECTIONS),
+                                                config.num_updates, config.num_updates):
+        pass
     speed = np.asarray(metrics["speed_along"]) / config.batch_size  # [4, updates], m/s
     tail = max(1, speed.shape[1] // 10)
     log(f"direction primitives: {config.num_updates} updates x {config.batch_size} steps each; "
