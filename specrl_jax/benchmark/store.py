@@ -17,7 +17,6 @@ directories and is not part of the results.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import math
 import os
@@ -181,57 +180,6 @@ def suite_metric(entry: dict[str, Any], metric: str) -> tuple[float | None, floa
     """(mean, std) over seeds of a suite's `metric` (the record's summary; None if not there)."""
     group = next(iter(entry["summary"]["groups"].values()), {})
     return group.get(f"{metric}_mean"), group.get(f"{metric}_std")
-
-
-@dataclasses.dataclass(frozen=True)
-class Trained:
-    """Trained parameters with what is needed to run them: a run directory's or a store cell's."""
-
-    method: str
-    env_id: str
-    params: Any  # leading seed axis
-    env_options: dict[str, Any]
-    method_options: dict[str, Any]
-    source: str
-
-
-def load_trained(ref: str | os.PathLike, store: Store | None = None,
-                 env_id: str | None = None) -> Trained:
-    """The parameters of a run directory written by `specrl-jax train` / `experiment.train`
-    (its `config.json` names the method, world and options; `params.msgpack`, every seed), or
-    of a results-store cell by name (e.g. `LetterLTL0-v0/genz`: seed 1). With `env_id`, a run
-    of another world (variants aside: `.partial` and the like) is refused before loading."""
-    from specrl_jax.baselines import experiment
-
-    def check(trained_on: str, source: str) -> None:
-        if env_id is not None and trained_on.split(".")[0] != env_id.split(".")[0]:
-            raise ValueError(f"{source} was trained on {trained_on}, not {env_id}")
-
-    path = Path(ref)
-    if (path / "config.json").exists():
-        config = json.loads((path / "config.json").read_text())
-        check(config["env"], str(path))
-        if not (path / "params.msgpack").exists():
-            raise ValueError(f"{path} holds no params.msgpack: its training has not finished")
-        env_options = dict(config.get("env_options") or {})
-        method_options = dict(config.get("method_options") or {})
-        params = experiment.load_params(config["method"], config["env"], path / "params.msgpack",
-                                        int(config.get("num_seeds", 1)),
-                                        env_options=env_options or None,
-                                        method_options=method_options or None)
-        return Trained(config["method"], config["env"], params, env_options, method_options,
-                       str(path))
-    name = str(ref)
-    if name not in grid.BY_NAME:
-        raise ValueError(f"{name!r} is neither a run directory (no config.json) nor a cell of the "
-                         "grid (`specrl-jax reproduce --list`)")
-    cell = grid.cell(name)
-    check(cell.env_id, name)
-    store = store or Store()
-    if not cell.trains or not store.params_path(cell).exists():
-        raise ValueError(f"the results store holds no trained parameters for {name}")
-    return Trained(cell.method, cell.env_id, store.load_params(cell), dict(cell.env_options),
-                   cell.options(), f"{name} (seed 1)")
 
 
 def default() -> Store:

@@ -9,7 +9,8 @@ import pytest
 
 from specrl_jax import cli
 from specrl_jax.benchmark import grid
-from specrl_jax.benchmark.store import Store, load_trained
+from specrl_jax.benchmark.agent import load
+from specrl_jax.benchmark.store import Store
 
 EVAL = ["eval", "--suite", "letter/finite/ind", "--seeds", "1", "--episodes", "2", "--no-progress"]
 
@@ -30,7 +31,7 @@ def test_committed_parameters_load_and_evaluate(tmp_path):
 
 def test_trained_parameters_of_another_world_or_an_unknown_name_are_refused(tmp_path, capsys):
     with pytest.raises(ValueError, match="trained on LetterLTL0-v0, not PointLTL0-v0"):
-        load_trained("LetterLTL0-v0/genz", env_id="PointLTL0-v0")
+        load("LetterLTL0-v0/genz", "PointLTL0-v0")
     run = tmp_path / "run"
     run.mkdir()
     (run / "config.json").write_text(json.dumps({"method": "genz", "env": "PointLTL0-v0"}))
@@ -39,4 +40,4 @@ def test_trained_parameters_of_another_world_or_an_unknown_name_are_refused(tmp_
     assert cli.main([*EVAL, "--env", "LetterLTL0-v0", "--policy", "nothing/here"]) == 2
     assert "neither a run directory" in capsys.readouterr().err
     with pytest.raises(ValueError, match="no trained parameters"):
-        load_trained("PandaLTLReach0Joints-v0/genz")
+        load("PandaLTLReach0Joints-v0/genz", "PandaLTLReach0Joints-v0")
