@@ -250,5 +250,5 @@ def test_ltl2action_learns_a_tiny_world_on_the_curriculum():
                                 update_epochs=4, num_minibatches=2)
     _, rows = train_rows(ltl2action, method, cfg, updates)
     first, last = early_late(rows)
-    assert first < 0.4 and last > 0.6, (first, last)
+    assert first < 0.4 and last > 0.5 and last > first + 0.25, (first, last)
     assert rows[0]["curriculum_stage"] == 0.0

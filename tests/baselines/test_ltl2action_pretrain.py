@@ -80,7 +80,7 @@ def test_prepare_training_pretrains_on_the_methods_own_formulas_when_asked(monke
         calls.append((alphabet.shape, propositions, formulas, stages, family, steps))
         return {"params": {"marker": np.ones(2)}}
 
-    monkeypatch.setattr(ltl2action_pretrain, "pretrain_encoder", fake_pretrain)
+    monkeypatch.setattr(ltl2action, "pretrain_encoder", fake_pretrain)
     cfg = ltl2action.ppo_config(total_timesteps=1024)
     plain = ltl2action.make_method(world, params, formulas=FORMULAS)
     assert ltl2action.prepare_training(plain, jax.random.key(0), cfg) is plain
