@@ -100,6 +100,29 @@ def enable_compilation_cache() -> None:
     cache.enable_jax_cache()
 
 
+#: `train` and `reproduce` as one job over several processes (hosts)
+PROCESS_ARGS = (
+    arg("--coordinator", default=None, metavar="HOST:PORT",
+        help="several hosts: run the same command on each, with process 0's HOST and a free PORT; "
+             "JAX_COORDINATOR_ADDRESS when absent (under Slurm or Open MPI JAX reads the rest: "
+             "leave the three flags out). The env batch is sharded over every process's devices; "
+             "process 0 alone writes --out (or --store), and every process resumes from its "
+             "checkpoint: put it on a filesystem that every host shares"),
+    arg("--num-processes", type=positive_int, default=None, metavar="N",
+        help="several hosts: processes in the job (with --coordinator and --process-id)"),
+    arg("--process-id", type=nonnegative_int, default=None, metavar="I",
+        help="several hosts: this process's index, 0..N-1; process 0 writes and prints"),
+)
+
+
+def join_processes(args: argparse.Namespace) -> None:
+    """Join the job of several processes named by `--coordinator`, `--num-processes`,
+    `--process-id` or the environment (`baselines.hosts`), before any JAX computation."""
+    from specrl_jax.baselines import hosts
+
+    hosts.join(hosts.process_group(args.coordinator, args.num_processes, args.process_id))
+
+
 def announce_world_loading() -> None:
     """Say on stderr that the world modules are loading, unless they are loaded: importing
     MuJoCo MJX (with MuJoCo Warp where installed) takes 5-15 s on a CPU."""
@@ -285,8 +308,10 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
         help="an option of the method (repeatable), e.g. for ltl2action sampler=curriculum, "
              "encoder=ENCODER.msgpack (a pretrained formula encoder), freeze_encoder=True, "
              "pretrain_steps=10000000; for rad sampler=rad; a wrong key lists the accepted ones"),
+    *PROCESS_ARGS,
 )
 def train_command(args: argparse.Namespace) -> int:
+    join_processes(args)
     enable_compilation_cache()
     import jax
 
@@ -309,6 +334,8 @@ def train_command(args: argparse.Namespace) -> int:
     params, summary = experiment.train(args.method, args.env, out, overrides, args.seeds, args.seed,
                                        map_bank=map_bank or None, restart=args.restart,
                                        env_options=env_options, method_options=method_options)
+    if jax.process_index() != 0:  # process 0 of several reports and evaluates
+        return 0
     print(f"trained {args.seeds} x {summary['env_steps_per_seed']:,} steps, "
           f"{summary['env_steps_per_s']:,.0f} env-steps/s; run directory {out}")
     if args.eval_episodes > 0:
@@ -461,10 +488,13 @@ def pretrain_command(args: argparse.Namespace) -> int:
     arg("--num-envs", type=positive_int, default=None, help="smoke runs: envs per seed"),
     arg("--rerun", action="store_true",
         help="discard the selected cells' stored results and run them end to end again"),
+    *PROCESS_ARGS,
 )
 def reproduce_command(args: argparse.Namespace) -> int:
     from specrl_jax.benchmark import reproduce
 
+    if not args.list:
+        join_processes(args)
     return reproduce.run_from_args(args)
 
 

@@ -21,7 +21,7 @@ import jax
 import numpy as np
 
 from specrl_jax import families, specs
-from specrl_jax.baselines import runs
+from specrl_jax.baselines import hosts, runs
 from specrl_jax.baselines.params_io import load_params as read_params
 from specrl_jax.baselines.params_io import load_params_into, save_params
 from specrl_jax.baselines.ppo import PPOConfig, env_mesh, make_train
@@ -149,10 +149,13 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     `env_options` are `make`'s overrides of the world (e.g. `{"image_size": 64}`),
     `method_options` the method's `make_method` options (e.g. `{"sampler": "curriculum"}`).
     `restart` discards a run directory's earlier run (else it is resumed if its settings match).
-    The env batch is sharded over `devices` (default: every local device; `num_envs` must
-    divide by their count), parameters replicated; the result does not depend on the count
-    beyond floating-point reduction order."""
+    The env batch is sharded over `devices` (default: every device, of every process in a job
+    of several; `num_envs` must divide by their count), parameters replicated; the result does
+    not depend on the count beyond floating-point reduction order. In a job of several processes
+    (`hosts.join`) every process calls it alike; process 0 writes the run directory and logs.
+    The parameters are returned as numpy arrays."""
     key_bank, key_train = jax.random.split(jax.random.key(seed))
+    log = hosts.writer_log(log)
     start = time.perf_counter()
     spec = get_method(method)
     # every setting is checked before the expensive steps (map bank, method tables, compilation)
@@ -186,15 +189,15 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     )
     wall = time.perf_counter() - start
     rows = runs.read_metrics(run_dir)
-    params = runner.params
+    params, updates = hosts.host_copy((runner.params, runner.update))
     if spec.finish_training is not None:  # a phase on the trained policy (GCRL-LTL's values)
         params = spec.finish_training(method_obj, params, key_train, config, log)
-    save_params(Path(run_dir) / "params.msgpack", params)
     summary = {
         "method": method, "env": env_id, "num_seeds": num_seeds, "ppo": dataclasses.asdict(config),
         "env_steps_per_seed": rows[-1]["env_steps"] if rows else 0,
-        "complete": int(runner.update[0]) >= config.num_updates,
+        "complete": int(updates[0]) >= config.num_updates,
         "devices": int(mesh.size),  # the env batch was sharded over this many devices
+        "processes": jax.process_count(),  # ... of this many processes
         "physics": physics,  # Zone worlds
         "setup_s": setup,  # env and map bank, before training
         "wall_s_this_session": wall,
@@ -203,7 +206,10 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         "final_success_rate": rows[-1].get("success_rate") if rows else None,
         "time_to_success": time_to_levels(rows),
     }
-    (Path(run_dir) / "train_summary.json").write_text(json.dumps(summary, indent=1))
+    if hosts.is_writer():
+        save_params(Path(run_dir) / "params.msgpack", params)
+        (Path(run_dir) / "train_summary.json").write_text(json.dumps(summary, indent=1))
+    hosts.barrier("parameters written")
     return params, summary
 
 

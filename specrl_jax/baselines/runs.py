@@ -2,11 +2,13 @@
 curve, and a progress line with env-steps/s.
 
 Layout of `run_dir`: `config.json`, `metrics.jsonl` (one line per update), `checkpoint.msgpack`
-(the whole `RunnerState`, flax serialisation), `curve.png`.
+(the whole `RunnerState`, flax serialisation), `curve.png`. In a job of several processes
+(`hosts`), process 0 alone writes them and every process resumes from its checkpoint.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
@@ -20,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from specrl_jax.automata.tensors import pack_step_planes
+from specrl_jax.baselines import hosts
 from specrl_jax.baselines.params_io import load_params, load_params_into, save_params
 from specrl_jax.baselines.ppo.train import RunnerState, Trainer
 
@@ -36,8 +39,12 @@ class TrainingInterrupted(KeyboardInterrupt):
 
 
 def save_checkpoint(path: str | os.PathLike, runner: RunnerState) -> None:
-    """Write `runner` atomically (typed PRNG keys are stored as raw key data)."""
-    save_params(path, runner.replace(key=jax.random.key_data(runner.key)))
+    """Write `runner` atomically (typed PRNG keys are stored as raw key data); in a job of
+    several processes call it on every process (it gathers the sharded env batch), process 0
+    writes."""
+    state = hosts.host_copy(runner.replace(key=jax.random.key_data(runner.key)))
+    if hosts.is_writer():
+        save_params(path, state)
 
 
 def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerState:
@@ -49,11 +56,11 @@ def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerSta
     raw = template.replace(key=jax.random.key_data(template.key))
     try:
         stored = add_derived_spec_fields(load_params(path, what="training checkpoint"))
-        restored = load_params_into(jax.device_get(raw), stored)
+        restored = load_params_into(jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), raw), stored)
     except ValueError as err:
         raise ValueError(f"checkpoint {path} cannot be read ({err}); delete it, or start over "
                          "with --restart, or use another --out") from err
-    restored = jax.tree.map(lambda t, x: jax.device_put(np.asarray(x), t.sharding), raw, restored)
+    restored = jax.tree.map(lambda t, x: hosts.put_like(np.asarray(x), t), raw, restored)
     return restored.replace(key=jax.random.wrap_key_data(restored.key))
 
 
@@ -152,18 +159,21 @@ def train_in_run_dir(
     resumed only when its `config.json` equals this run's settings (else `ValueError` names the
     differing settings); `restart` discards what it holds. Returns the final runner state, with a
     leading seed axis `[num_seeds]`.
+
+    In a job of several processes (`hosts`) every process calls it alike: process 0 writes the
+    run directory and logs, every process resumes from its checkpoint, and the wall-clock
+    budget is process 0's.
     """
     cfg = trainer.config
+    writer = hosts.is_writer()
     config = run_config(cfg, num_seeds, extra_config)
     run_dir = check_run_dir(run_dir, config, restart)
-    if restart:
-        for name in (CHECKPOINT, "metrics.jsonl", "config.json", "curve.png"):
-            (run_dir / name).unlink(missing_ok=True)
-    try:
-        (run_dir / "config.json").write_text(json.dumps(config, indent=2))
-    except OSError as err:
-        raise ValueError(f"cannot write to the run directory {run_dir}: {err.strerror}") from err
+    hosts.barrier("run directory checked")  # every process has read it before process 0 writes
+    log = hosts.writer_log(log)
+    if writer:
+        _start_run_dir(run_dir, config, restart)
     runner = init_seeds(trainer, key, num_seeds)
+    hosts.barrier("run directory ready")
     wall_before = 0.0
     if (run_dir / CHECKPOINT).exists():
         runner = load_checkpoint(run_dir / CHECKPOINT, runner)
@@ -173,34 +183,49 @@ def train_in_run_dir(
     total = cfg.num_updates if max_updates is None else min(cfg.num_updates, max_updates)
     start_wall = time.perf_counter()
     done_at_start = checkpointed = int(runner.update[0])
-    _drop_rows_after(run_dir, done_at_start)  # rows written before an interrupted checkpoint
+    if writer:
+        _drop_rows_after(run_dir, done_at_start)  # rows written before an interrupted checkpoint
     try:
-        with open(run_dir / "metrics.jsonl", "a") as out:
+        with open(run_dir / "metrics.jsonl", "a") if writer else contextlib.nullcontext() as out:
             chunks = train_chunks(trainer, runner, num_seeds, chunk_updates, total, first_chunk)
             rate_from = None  # after the first chunk: rates since it ended, without compilation
             for runner, metrics, n, done in chunks:
-                elapsed = _log_chunk(out, metrics, n, done, rate_from or (done_at_start, 0.0),
-                                     rate_from is None, total, cfg, num_seeds, wall_before,
-                                     time.perf_counter() - start_wall, summarise, log)
+                elapsed = time.perf_counter() - start_wall
+                if writer:
+                    _log_chunk(out, metrics, n, done, rate_from or (done_at_start, 0.0),
+                               rate_from is None, total, cfg, num_seeds, wall_before, elapsed,
+                               summarise, log)
                 rate_from = rate_from or (done, elapsed)
                 save_checkpoint(run_dir / CHECKPOINT, runner)
                 checkpointed = done
-                if max_wall_s is not None and elapsed > max_wall_s:
+                if max_wall_s is not None and hosts.from_writer(np.bool_(elapsed > max_wall_s)):
                     log(f"stopping at update {done}: wall-clock budget of {max_wall_s:.0f}s spent")
                     break
     except KeyboardInterrupt as err:
         raise TrainingInterrupted(run_dir, checkpointed) from err
-    plot_curve(run_dir)
+    if writer:
+        plot_curve(run_dir)
+    hosts.barrier("run directory written")  # every process reads what process 0 wrote
     return runner
+
+
+def _start_run_dir(run_dir: Path, config: dict[str, Any], restart: bool) -> None:
+    """Write `config.json` in `run_dir`, first discarding the run it holds if `restart`."""
+    if restart:
+        for name in (CHECKPOINT, "metrics.jsonl", "config.json", "curve.png"):
+            (run_dir / name).unlink(missing_ok=True)
+    try:
+        (run_dir / "config.json").write_text(json.dumps(config, indent=2))
+    except OSError as err:
+        raise ValueError(f"cannot write to the run directory {run_dir}: {err.strerror}") from err
 
 
 def _log_chunk(out: Any, metrics: dict[str, Any], n: int, done: int,
                rate_from: tuple[int, float], first: bool, total: int, cfg: Any, num_seeds: int,
                wall_before: float, elapsed: float, summarise: Callable,
-               log: Callable[[str], None]) -> float:
+               log: Callable[[str], None]) -> None:
     """Append a chunk's rows to `metrics.jsonl` and log a progress line (the rate since
-    `rate_from`'s (update, elapsed s); the session's `first` chunk marked as compiling); returns
-    `elapsed`."""
+    `rate_from`'s (update, elapsed s); the session's `first` chunk marked as compiling)."""
     rows = _rows(metrics, n, summarise)
     for i, row in enumerate(rows):
         update = done - n + i + 1
@@ -214,7 +239,6 @@ def _log_chunk(out: Any, metrics: dict[str, Any], n: int, done: int,
         f"update {done}/{total}  env steps {done * cfg.batch_size:,} x {num_seeds} seeds  "
         f"{rate:,.0f} steps/s  " + "  ".join(f"{k} {v:.3g}" for k, v in shown.items()) + note
     )
-    return elapsed
 
 
 def run_config(cfg: Any, num_seeds: int, extra_config: dict[str, Any] | None = None
@@ -229,12 +253,17 @@ def check_run_dir(run_dir: str | os.PathLike, config: dict[str, Any], restart: b
                   ) -> Path:
     """Create `run_dir` and check, before any expensive step, that it is writable and (unless
     `restart`) fresh or holding a run of exactly `config`'s settings (`check_resumable`);
-    writes nothing in it. Returns it as a `Path`.
+    writes nothing in it. Returns it as a `Path`. Processes other than process 0 of a job of
+    several only read it.
 
     Raises:
         ValueError: saying which, and what to do.
     """
     run_dir = Path(run_dir)
+    if not hosts.is_writer():
+        if not restart:
+            check_resumable(run_dir, config)
+        return run_dir
     try:
         run_dir.mkdir(parents=True, exist_ok=True)
     except OSError as err:

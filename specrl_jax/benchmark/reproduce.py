@@ -12,7 +12,10 @@ On a lent machine, `--store $OUT/store` keeps the results (and the resumable run
 under its `scratch/`) where they come back; copy the cell directories into the package store.
 
 On a host with several GPUs the cells run side by side, one per GPU (a subprocess each with
-`CUDA_VISIBLE_DEVICES`); on one GPU or a CPU, one after the other in this process.
+`CUDA_VISIBLE_DEVICES`); on one GPU or a CPU, one after the other in this process. In a job of
+several processes (`baselines.hosts.join`: `specrl-jax reproduce --coordinator ...`) the cells
+run one after the other, each trained over every process's devices; every process evaluates
+(the same episodes on its own devices), process 0 alone writes the store.
 
     from specrl_jax.benchmark import reproduce
     reproduce.reproduce("LetterLTL0-v0/genz")
@@ -32,6 +35,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from specrl_jax.baselines import hosts
 from specrl_jax.benchmark import grid
 from specrl_jax.benchmark.grid import Cell
 from specrl_jax.benchmark.store import Store, missing_work, suite_seeds
@@ -105,10 +109,14 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     it lacks, record the trajectory figure's episodes on a Zone LiDAR world; returns its
     record. `train(cell, run_dir, log) -> (params, summary)`, `evaluate(cell, params, suites,
     log) -> [SuiteResult]`, `load(cell, path, num_seeds)` and `trajectories(cell, params) ->
-    dict` replace the defaults (tests; `trajectories=False`: none recorded)."""
+    dict` replace the defaults (tests; `trajectories=False`: none recorded). In a job of several
+    processes every process calls it alike and process 0 writes."""
     store = store or Store()
     train, evaluate = train or default_train, evaluate or default_evaluate
     load = load or default_load
+    writer = hosts.is_writer()
+    draw = (trajectories and records_trajectories(cell)
+            and not store.trajectories_path(cell).exists())
     record = store.read(cell) or store.new_record(cell)
     record["config"] = cell.config()
     todo = missing_work(cell, record)
@@ -132,12 +140,14 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
             record["versions"], record["device"] = _versions()
             record.pop("source", None)
             record.pop("params_note", None)
-            _save_seed1(params, store.params_path(cell))
-            if (run_dir / "metrics.jsonl").exists():
-                shutil.copyfile(run_dir / "metrics.jsonl", store.curve_path(cell))
-            store.write(cell, record)
+            if writer:
+                _save_seed1(params, store.params_path(cell))
+                if (run_dir / "metrics.jsonl").exists():
+                    shutil.copyfile(run_dir / "metrics.jsonl", store.curve_path(cell))
+                store.write(cell, record)
             if not record["training"]["complete"]:
                 log(f"{cell.name}: training stopped before its last update; rerun to resume")
+                hosts.barrier(f"{cell.name} written")
                 return record
         elif suites_todo:
             params = load(cell, trained, cell.seeds)
@@ -162,11 +172,11 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
             "episodes)")
         start = time.perf_counter()
         results = evaluate(cell, params, group, log)
-        record["versions"], record["device"] = _versions()
-        store.write(cell, record)
-        record = store.add_suites(cell, results, time.perf_counter() - start)
-    if trajectories and records_trajectories(cell) and params is not None \
-            and not store.trajectories_path(cell).exists():
+        if writer:
+            record["versions"], record["device"] = _versions()
+            store.write(cell, record)
+            record = store.add_suites(cell, results, time.perf_counter() - start)
+    if draw and params is not None:
         log(f"{cell.name}: recording the trajectory figure's episodes")
         recorder = record_trajectories if trajectories is True else trajectories
         try:  # a figure's episodes: a failure here leaves the cell's results as they are
@@ -174,7 +184,10 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
         except Exception as err:  # noqa: BLE001
             log(f"{cell.name}: no trajectories recorded: {type(err).__name__}: {err}")
         else:
-            store.trajectories_path(cell).write_text(json.dumps(episodes, sort_keys=True) + "\n")
+            if writer:
+                store.trajectories_path(cell).write_text(json.dumps(episodes, sort_keys=True)
+                                                         + "\n")
+    hosts.barrier(f"{cell.name} written")  # the next reads see what process 0 wrote
     result = store.read(cell)
     log(f"{cell.name}: {result['state']}")
     return result
@@ -387,13 +400,23 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
               worker_args: Sequence[str] = (), rerun: bool = False,
               **run_options: Any) -> dict[str, str]:
     """Run the selected cells (`grid.select(patterns)`, or `cells`); returns `{name: state}`.
-    `rerun` discards what the store holds of them first, so they run end to end."""
+    `rerun` discards what the store holds of them first, so they run end to end. In a job of
+    several processes (`hosts.join`) the cells run in turn (`gpus` None or 1), each over every
+    process's devices; process 0 writes and logs."""
     store = store or Store()
     chosen = list(cells) if cells is not None else grid.select(patterns)
+    if hosts.joined():
+        if gpus not in (None, 1):
+            raise ValueError(f"--gpus {gpus} runs cells side by side on one host; a job of several "
+                             "processes trains each cell over every process's devices, one cell "
+                             "after the other: leave --gpus out")
+        gpus, log = 1, hosts.writer_log(log)
     if rerun:
         for c in chosen:
             log(f"{c.name}: discarding its stored results to run it again")
-            discard(c, store)
+            if hosts.is_writer():
+                discard(c, store)
+    hosts.barrier("store ready")  # every process reads the store as process 0 left it
     todo = [c for c in chosen if store.state(c) != "done"]
     for c in chosen:
         if c not in todo:
@@ -509,8 +532,8 @@ def run_from_args(args: argparse.Namespace) -> int:
                        rerun=getattr(args, "rerun", False),
                        log=lambda line: print(line, flush=True))
     incomplete = [n for n, s in states.items() if s != "done"]
-    print(f"{len(states) - len(incomplete)}/{len(states)} cells done"
-          + (f"; not done: {', '.join(incomplete)}" if incomplete else ""))
+    hosts.writer_log(print)(f"{len(states) - len(incomplete)}/{len(states)} cells done"
+                            + (f"; not done: {', '.join(incomplete)}" if incomplete else ""))
     return 0 if not incomplete else 1
 
 

@@ -259,8 +259,8 @@ def make_train(config: PPOConfig, method: Method, mesh: Mesh | None = None) -> T
 
 
 def env_mesh(devices: list | None = None) -> Mesh:
-    """A one-axis mesh named "env" over `devices` (default: all local devices; after
-    `jax.distributed.initialize`, pass `jax.devices()` for every device of every host)."""
+    """A one-axis mesh named "env" over `devices` (default: `jax.devices()`, every device of
+    this process, and after `jax.distributed.initialize` of every process of the job)."""
     import numpy as np
 
-    return Mesh(np.asarray(devices if devices is not None else jax.local_devices()), ("env",))
+    return Mesh(np.asarray(devices if devices is not None else jax.devices()), ("env",))
