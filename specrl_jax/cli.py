@@ -152,7 +152,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 def list_envs_command(args: argparse.Namespace) -> int:
     from specrl_jax.envs.registry import describe, list_envs
 
-    announce_world_loading()
     for env_id in list_envs():
         print(f"{env_id:32s} {describe(env_id)}")
     return 0

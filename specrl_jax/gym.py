@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import multiprocessing
 import os
-import sys
 from typing import Any, ClassVar
 
 import gymnasium
@@ -327,10 +326,7 @@ class GymMultiEnv(gymnasium.Env):
 def register_all() -> list[str]:
     """Register every specrl_jax env ID not yet known to Gymnasium; returns the new IDs."""
     added = []
-    if sys.stderr is not None and sys.stderr.isatty() and "specrl_jax.envs.zone" not in sys.modules:
-        print("specrl_jax.gym: loading the world modules (MuJoCo MJX: seconds) to register "
-              "their IDs ...", file=sys.stderr, flush=True)
-    from specrl_jax.envs import multi as multi_zone
+    from specrl_jax.envs import multi as multi_zone  # its IDs only: no world module loads
 
     multi_agent_ids = set(multi_zone.env_ids())
     for env_id in specrl_jax.list_envs():

@@ -1,7 +1,9 @@
 """Env IDs -> constructors, as one explicit table, and the one place where an ID's overrides
 are validated. Importing a world module registers nothing: each world family exposes
 `env_ids() -> {env_id: (factory, description, overrides)}`, and the table below lists the
-families. Variants are entries over configs, never subclasses.
+families. Variants are entries over configs, never subclasses. A family's `env_ids()` stays
+cheap (no MuJoCo, MJX or JAX where it can): listing IDs imports no physics, and `overrides` may
+be a function returning the `Overrides`, so that the world's modules load at `make`.
 
 `make(env_id, **overrides)` checks the ID (close matches on a typo) and, where the entry
 declares its `Overrides`, every override name and `max_steps` before any world is built; the
@@ -91,7 +93,7 @@ class Overrides:
             raise ValueError(f"max_steps must be a positive int, got {max_steps!r}")
 
 
-Entry = tuple[Factory, str, "Overrides | None"]
+Entry = tuple[Factory, str, "Overrides | Callable[[], Overrides] | None"]
 
 _EXTRA: dict[str, Entry] = {}
 
@@ -132,6 +134,7 @@ def list_envs() -> list[str]:
 
 
 def describe(env_id: str) -> str:
+    """The one-line description of a registered ID."""
     return _table()[_checked_id(env_id)][1]
 
 
@@ -139,6 +142,8 @@ def make(env_id: str, **overrides: Any) -> tuple[Any, Any]:
     """Build `(env, params)` for a registered ID; `overrides` change config or params fields
     (validated first: unknown names are listed with the accepted ones)."""
     factory, _, accepted = _table()[_checked_id(env_id)]
+    if callable(accepted):
+        accepted = accepted()
     if accepted is not None:
         accepted.split(overrides, env_id)
     return factory(**overrides)

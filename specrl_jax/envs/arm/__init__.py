@@ -8,41 +8,56 @@ mode 1 "grippers+arm"); `make_arm(config)` builds a custom arm world from an `Ar
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+import functools
+from typing import TYPE_CHECKING, Any
 
+from specrl_jax import lazy
 from specrl_jax.envs.arm.config import ArmConfig
-from specrl_jax.envs.arm.env import ArmEnv, ArmParams, ArmState
 from specrl_jax.envs.registry import Overrides
 
-#: what `make("PandaLTLReach...", **overrides)` accepts (checked by `envs.registry`)
-OVERRIDES = Overrides(ArmConfig, ArmParams, fixed=("mode", "partial", "control"))
+if TYPE_CHECKING:
+    from specrl_jax.envs.arm.env import ArmEnv, ArmParams
+
+#: names re-exported from the world module, imported on first use (MJX loads in seconds)
+__getattr__ = lazy.exports(__name__, {"env": ("ArmEnv", "ArmParams", "ArmState")})
+
+
+@functools.cache
+def overrides() -> Overrides:
+    """What `make("PandaLTLReach...", **overrides)` accepts (checked by `envs.registry`).
+    Imports the world module."""
+    from specrl_jax.envs.arm.env import ArmParams
+
+    return Overrides(ArmConfig, ArmParams, fixed=("mode", "partial", "control"))
 
 
 def make_arm(config: ArmConfig, **params: Any) -> tuple[ArmEnv, ArmParams]:
     """Build `(env, params)` from a config; `params` may override `max_steps`."""
-    OVERRIDES.check_params(params)
+    from specrl_jax.envs.arm.env import ArmEnv
+
+    overrides().check_params(params)
     env = ArmEnv(config)
     return env, dataclasses.replace(env.default_params, **params) if params else env.default_params
 
 
 def _factory(mode: int, partial: bool, control: str):
-    def build(**overrides: Any) -> tuple[ArmEnv, ArmParams]:
-        config_kw, params_kw = OVERRIDES.split(overrides)  # checked by `registry.make`
+    def build(**options: Any) -> tuple[ArmEnv, ArmParams]:
+        config_kw, params_kw = overrides().split(options)  # checked by `registry.make`
         config = ArmConfig(mode=mode, partial=partial, control=control, **config_kw)
         return make_arm(config, **params_kw)
 
     return build
 
 
-def env_ids() -> dict[str, tuple[Any, str]]:
-    """The Arm registry entries (read by `envs.registry`)."""
+def env_ids() -> dict[str, tuple[Any, str, Any]]:
+    """The Arm registry entries (read by `envs.registry`; imports no world module)."""
     names = {0: "grippers-only (grasp target in a region)", 1: "grippers+arm (link contact)"}
     controls = {"Joints": ("joints", "joint control"), "": ("ee", "end-effector control")}
     return {
         f"PandaLTLReach{mode}{kind}-v0{suffix}": (
             _factory(mode, suffix == ".partial", control),
             f"Panda arm, {words}, 8 spheres, {names[mode]}{suffix}",
-            OVERRIDES,
+            overrides,
         )
         for kind, (control, words) in controls.items()
         for mode in (0, 1)
@@ -50,4 +65,4 @@ def env_ids() -> dict[str, tuple[Any, str]]:
     }
 
 
-__all__ = ["ArmConfig", "ArmEnv", "ArmParams", "ArmState", "env_ids", "make_arm"]
+__all__ = ["ArmConfig", "ArmEnv", "ArmParams", "ArmState", "env_ids", "make_arm", "overrides"]

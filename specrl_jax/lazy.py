@@ -1,0 +1,29 @@
+"""Lazy package exports (PEP 562), so that importing a package leaves its heavy modules
+(JAX, MuJoCo, MJX) unloaded until a name from them is used."""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from typing import Any
+
+
+def exports(package: str, modules: dict[str, tuple[str, ...]]) -> Callable[[str], Any]:
+    """A module `__getattr__` for `package` resolving each name from its module.
+
+    Args:
+        package: the package's `__name__`.
+        modules: submodule name (relative to `package`) -> the names it exports.
+
+    Returns:
+        `__getattr__(name)`: imports the submodule defining `name` on first use; raises
+        `AttributeError` for other names.
+    """
+    owner = {name: module for module, names in modules.items() for name in names}
+
+    def __getattr__(name: str) -> Any:
+        if name not in owner:
+            raise AttributeError(f"module {package!r} has no attribute {name!r}")
+        return getattr(importlib.import_module(f"{package}.{owner[name]}"), name)
+
+    return __getattr__
