@@ -1,22 +1,33 @@
 """specrl_jax's on-disk caches, under one environment variable.
 
 `SPECRL_JAX_CACHE_DIR` names the root (default `~/.cache/specrl_jax`): JAX's persistent
-compilation cache lives in `<root>/jax`, compiled automata in `<root>/automata`. Set it to `off`
+compilation cache lives in `<root>/jax`, compiled automata in `<root>/automata`, reset banks in
+`<root>/banks`. Set it to `off`
 (or `0`, `false`, `no`, `none`) to use neither. Importing `specrl_jax` switches JAX's cache on
 (`enable_jax_cache`), so a new process reuses the compiled resets and steps of earlier ones,
 unless JAX's cache directory was configured already (`JAX_COMPILATION_CACHE_DIR` or
-`jax.config`), which is then left alone.
+`jax.config`), which is then left alone. Library users keep JAX's threshold (programs compiling in
+under 1 s are not stored); the `specrl-jax` command stores every program (`CLI_MIN_COMPILE_SECONDS`),
+so that a second identical run compiles nothing. `JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`
+overrides both.
 """
 
 from __future__ import annotations
 
 import os
 import sys
+import tempfile
+import zipfile
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import numpy as np
 
 ENV_VAR = "SPECRL_JAX_CACHE_DIR"
 OFF_VALUES = ("off", "0", "false", "no", "none")
-#: compilations faster than this are not written to JAX's cache (JAX's own default is 1 s)
-MIN_COMPILE_SECONDS = 1.0
+#: the command line stores every compiled program: the dozens under 1 s add up to seconds
+CLI_MIN_COMPILE_SECONDS = 0.0
+MIN_COMPILE_TIME_VAR = "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"
 
 
 def root() -> str | None:
@@ -39,26 +50,63 @@ def automata_dir() -> str | None:
     return None if base is None else os.path.join(base, "automata")
 
 
-def enable_jax_cache(min_compile_seconds: float = MIN_COMPILE_SECONDS) -> str | None:
+def banks_dir() -> str | None:
+    """Directory of the reset-bank cache (`envs.bank_cache`), or None (off)."""
+    base = root()
+    return None if base is None else os.path.join(base, "banks")
+
+
+def load_arrays(directory: str | None, name: str) -> dict[str, np.ndarray] | None:
+    """The arrays of `<directory>/<name>.npz`, or None (no directory, missing or unreadable)."""
+    import numpy as np  # here, not at the top: `import specrl_jax` stays light
+
+    if directory is None:
+        return None
+    try:
+        with np.load(os.path.join(directory, name + ".npz")) as data:
+            return {key: data[key] for key in data.files}
+    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError):
+        return None
+
+
+def save_arrays(directory: str | None, name: str, arrays: dict[str, np.ndarray]) -> None:
+    """Write `<directory>/<name>.npz` atomically (temporary file + rename); skipped without a
+    directory or when it is not writable."""
+    import numpy as np  # here, not at the top: `import specrl_jax` stays light
+
+    if directory is None:
+        return
+    try:
+        os.makedirs(directory, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp")
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **arrays)
+        os.replace(tmp, os.path.join(directory, name + ".npz"))
+    except OSError:
+        return
+
+
+def enable_jax_cache(min_compile_seconds: float | None = None) -> str | None:
     """Point JAX's persistent compilation cache at `jax_dir()`; returns the directory in use.
 
     Leaves a directory configured by the user (environment or `jax.config`) as it is, and does
-    nothing when caching is off. Cheap: before JAX is imported it only sets JAX's environment
-    variables, which JAX reads on import.
+    nothing when caching is off. `min_compile_seconds` (None: JAX's 1 s) is the shortest
+    compilation stored, unless the environment sets `MIN_COMPILE_TIME_VAR`. Cheap: before JAX
+    is imported it only sets JAX's environment variables, which JAX reads on import.
     """
     directory = jax_dir()
     if "jax" not in sys.modules:
         if directory is None:
             return os.environ.get("JAX_COMPILATION_CACHE_DIR")
         os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", directory)
-        os.environ.setdefault(
-            "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", str(min_compile_seconds)
-        )
+        if min_compile_seconds is not None:
+            os.environ.setdefault(MIN_COMPILE_TIME_VAR, str(min_compile_seconds))
         return os.environ["JAX_COMPILATION_CACHE_DIR"]
     import jax
 
+    if min_compile_seconds is not None and MIN_COMPILE_TIME_VAR not in os.environ:
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", min_compile_seconds)
     if jax.config.jax_compilation_cache_dir or directory is None:
         return jax.config.jax_compilation_cache_dir
     jax.config.update("jax_compilation_cache_dir", directory)
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", min_compile_seconds)
     return directory

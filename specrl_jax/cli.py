@@ -93,11 +93,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def enable_compilation_cache() -> None:
     """JAX's persistent compilation cache under `$SPECRL_JAX_CACHE_DIR/jax` (default
-    ~/.cache/specrl_jax/jax, `off` to disable), unless one is configured already
-    (`specrl_jax.cache`)."""
+    ~/.cache/specrl_jax/jax, `off` to disable), unless one is configured already, storing every
+    compiled program, so that a second identical run compiles nothing (`specrl_jax.cache`)."""
     from specrl_jax import cache
 
-    cache.enable_jax_cache()
+    cache.enable_jax_cache(cache.CLI_MIN_COMPILE_SECONDS)
 
 
 #: `train` and `reproduce` as one job over several processes (hosts)
@@ -123,10 +123,10 @@ def join_processes(args: argparse.Namespace) -> None:
     hosts.join(hosts.process_group(args.coordinator, args.num_processes, args.process_id))
 
 
-def announce_world_loading() -> None:
-    """Say on stderr that the world modules are loading, unless they are loaded: importing
-    MuJoCo MJX (with MuJoCo Warp where installed) takes 5-15 s on a CPU."""
-    if "specrl_jax.envs.zone" not in sys.modules:
+def announce_world_loading(env_id: str) -> None:
+    """Say on stderr that the MuJoCo worlds' modules are loading, for an ID of one, unless they
+    are loaded: importing MuJoCo MJX (with MuJoCo Warp where installed) takes 5-15 s on a CPU."""
+    if not env_id.startswith("Letter") and "mujoco.mjx" not in sys.modules:
         print("loading the world modules (MuJoCo MJX: seconds) ...", file=sys.stderr, flush=True)
 
 
@@ -320,7 +320,7 @@ def train_command(args: argparse.Namespace) -> int:
     from specrl_jax import families
 
     platform = jax.devices()[0].platform
-    announce_world_loading()
+    announce_world_loading(args.env)
     world_family = experiment.family(args.env)
     total = args.total_steps or families.default_total_steps(platform)
     overrides = experiment.default_overrides(platform, total, world_family, args.method)

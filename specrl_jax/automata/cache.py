@@ -9,9 +9,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
-import zipfile
 from collections.abc import Sequence
 
 import numpy as np
@@ -47,27 +44,9 @@ def cache_key(formula: str, propositions: Sequence[str], alphabet: np.ndarray, *
 
 def load(key: str) -> dict[str, np.ndarray] | None:
     """The arrays stored under `key`, or None (missing, unreadable, or caching off)."""
-    directory = cache_dir()
-    if directory is None:
-        return None
-    path = os.path.join(directory, key + ".npz")
-    try:
-        with np.load(path) as data:
-            return {name: data[name] for name in data.files}
-    except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError):
-        return None
+    return _root_cache.load_arrays(cache_dir(), key)
 
 
 def save(key: str, arrays: dict[str, np.ndarray]) -> None:
     """Store `arrays` under `key` (skipped if caching is off or the directory is not writable)."""
-    directory = cache_dir()
-    if directory is None:
-        return
-    try:
-        os.makedirs(directory, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=directory, suffix=".tmp")
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **arrays)
-        os.replace(tmp, os.path.join(directory, key + ".npz"))
-    except OSError:
-        return
+    _root_cache.save_arrays(cache_dir(), key, arrays)

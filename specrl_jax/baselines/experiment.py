@@ -26,6 +26,7 @@ from specrl_jax.baselines.params_io import load_params as read_params
 from specrl_jax.baselines.params_io import load_params_into, save_params
 from specrl_jax.baselines.ppo import PPOConfig, env_mesh, make_train
 from specrl_jax.baselines.spec import get_method
+from specrl_jax.envs import bank_cache
 from specrl_jax.envs.registry import make
 
 SUCCESS_LEVELS = (0.5, 0.8, 0.9, 0.95, 0.98)
@@ -104,8 +105,8 @@ def with_method(method: str, world: Any, params: Any, map_bank: int | None, key:
                 method_options: dict[str, Any] | None = None) -> tuple[Any, Any]:
     """(train params, method object) on a built world: the expensive part of `build`."""
     if map_bank and families.of(world).map_bank:
-        # wait for the bank here: dispatched asynchronously, it would finish inside training
-        params = jax.block_until_ready(world.with_map_bank(key, params, num_maps=map_bank))
+        # waits for the bank here: dispatched asynchronously, it would finish inside training
+        params = bank_cache.with_map_bank(world, params, key, map_bank)
     method_obj = get_method(method).make_method(world, params, families.of(world).name,
                                                 **(method_options or {}))
     return params, method_obj
@@ -177,10 +178,10 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     if spec.prepare_training is not None:  # a phase before PPO (GCRL-LTL's direction primitives)
         method_obj = spec.prepare_training(method_obj, key_train, config, log)
     setup = time.perf_counter() - start
-    log(f"set up {env_id} in {setup:.1f}s; training {num_seeds} x {trained_steps(config):,} env "
-        f"steps ({config.num_updates:,} updates of {config.batch_size:,}); compiling "
-        f"{spec.title}'s training step for {config.num_envs} envs x {config.num_steps} steps "
-        "(seconds to minutes; the first update includes it)")
+    log(f"set up {env_id} in {setup:.1f}s; training {spec.title}, {num_seeds} x "
+        f"{trained_steps(config):,} env steps ({config.num_updates:,} updates of "
+        f"{config.num_envs} envs x {config.num_steps} steps); compiling takes seconds to minutes "
+        "(seconds when the compilation cache holds it)")
     trainer = make_train(config, method_obj, mesh)
     start = time.perf_counter()
     runner = runs.train_in_run_dir(

@@ -23,6 +23,7 @@ import numpy as np
 
 from specrl_jax.automata.tensors import pack_step_planes
 from specrl_jax.baselines import hosts
+from specrl_jax.baselines.compile_log import compile_logged
 from specrl_jax.baselines.params_io import load_params, load_params_into, save_params
 from specrl_jax.baselines.ppo.train import RunnerState, Trainer
 
@@ -104,30 +105,37 @@ def seed_batched(trainer: Trainer, num_seeds: int) -> Callable:
     return single
 
 
-def init_seeds(trainer: Trainer, key: jax.Array, num_seeds: int) -> RunnerState:
+def init_seeds(trainer: Trainer, key: jax.Array, num_seeds: int,
+               log: Callable[[str], None] | None = None) -> RunnerState:
     """`num_seeds` initial runner states from `key`, stacked on a leading seed axis."""
+    keys = jax.random.split(key, num_seeds)
     # Seeds are initialised one by one: a vmapped orthogonal init (batched QR) hangs on XLA:CPU.
-    init = jax.jit(trainer.init)
-    seeds = [init(k) for k in jax.random.split(key, num_seeds)]
+    init = compile_logged(trainer.init, (keys[0],), "the initial state (env reset, network init)",
+                          log)
+    seeds = [init(k) for k in keys]
     return jax.tree.map(lambda *xs: jnp.stack(xs), *seeds)
 
 
 def train_chunks(trainer: Trainer, runner: RunnerState, num_seeds: int, chunk_updates: int,
-                 total: int, first_chunk: int | None = None
+                 total: int, first_chunk: int | None = None,
+                 log: Callable[[str], None] | None = None
                  ) -> Iterator[tuple[RunnerState, dict[str, Any], int, int]]:
     """The one training driver: from `runner`'s update (seed axis first) to `total`, in chunks of
     at most `chunk_updates` updates (the first of at most `first_chunk`, e.g. 1 to report the
     update that included compilation at once). Yields `(runner, metrics [seeds, chunk_updates]
     on the host, updates in this chunk, updates done)` after each chunk, so callers log,
-    checkpoint or stop."""
-    # One compiled chunk for every chunk: a shorter chunk runs the same scan, partly idle.
-    updates = jax.jit(seed_batched(trainer, num_seeds), static_argnums=1, donate_argnums=0)
+    checkpoint or stop; `log` hears what compiles and how long it took."""
     done = int(runner.update[0])
+    if done >= total:
+        return
+    # One compiled chunk for every chunk: a shorter chunk runs the same scan, partly idle.
+    updates = compile_logged(seed_batched(trainer, num_seeds), (runner, chunk_updates, jnp.int32(1)),
+                             "the training step", log, static_argnums=1, donate_argnums=0)
     size = min(first_chunk or chunk_updates, chunk_updates)
     while done < total:
         n = min(size, total - done)
         size = chunk_updates
-        runner, metrics = updates(runner, chunk_updates, jnp.int32(n))
+        runner, metrics = updates(runner, jnp.int32(n))
         done += n
         yield runner, jax.device_get(metrics), n, done
 
@@ -172,7 +180,7 @@ def train_in_run_dir(
     log = hosts.writer_log(log)
     if writer:
         _start_run_dir(run_dir, config, restart)
-    runner = init_seeds(trainer, key, num_seeds)
+    runner = init_seeds(trainer, key, num_seeds, log)
     hosts.barrier("run directory ready")
     wall_before = 0.0
     if (run_dir / CHECKPOINT).exists():
@@ -187,7 +195,8 @@ def train_in_run_dir(
         _drop_rows_after(run_dir, done_at_start)  # rows written before an interrupted checkpoint
     try:
         with open(run_dir / "metrics.jsonl", "a") if writer else contextlib.nullcontext() as out:
-            chunks = train_chunks(trainer, runner, num_seeds, chunk_updates, total, first_chunk)
+            chunks = train_chunks(trainer, runner, num_seeds, chunk_updates, total, first_chunk,
+                                  log)
             rate_from = None  # after the first chunk: rates since it ended, without compilation
             for runner, metrics, n, done in chunks:
                 elapsed = time.perf_counter() - start_wall

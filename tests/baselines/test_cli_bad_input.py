@@ -170,11 +170,18 @@ def test_ctrl_c_names_the_checkpointed_update_and_the_same_call_resumes(tmp_path
     with pytest.raises(runs.TrainingInterrupted,
                        match="interrupted at update 1; run the same command to resume"):
         runs.train_in_run_dir(_trainer(), jax.random.key(0), tmp_path, **options)
-    assert lines[0].startswith("update 1/3 ") and "compilation included" in lines[0]
-    assert lines[1].startswith("update 3/3 ") and "compilation" not in lines[1]
+    compiled = [line for line in lines if line.startswith("compil")]
+    assert [line.split(" in ")[0] for line in compiled] == [
+        "compiling the initial state (env reset, network init) ...",
+        "compiled the initial state (env reset, network init)",
+        "compiling the training step ...", "compiled the training step"]
+    progress = [line for line in lines if not line.startswith("compil")]
+    assert progress[0].startswith("update 1/3 ") and "compilation included" in progress[0]
+    assert progress[1].startswith("update 3/3 ") and "compilation" not in progress[1]
     monkeypatch.setattr(runs, "save_checkpoint", real)
     runner = runs.train_in_run_dir(_trainer(), jax.random.key(0), tmp_path, **options)
-    assert "resumed at update 1" in lines[2] and int(runner.update[0]) == 3
+    progress = [line for line in lines if not line.startswith("compil")]
+    assert "resumed at update 1" in progress[2] and int(runner.update[0]) == 3
     assert [r["update"] for r in runs.read_metrics(tmp_path)] == [1, 2, 3]
 
 

@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import optax
 from flax import struct
+from jax.extend import core as jax_core
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from specrl_jax import families
@@ -107,6 +108,24 @@ class Method:
     def task_metrics(self, task_params: Any) -> dict[str, jax.Array]:
         """Scalars of the task distribution logged with each update (e.g. the curriculum stage)."""
         return {}
+
+
+def trace_once(fn: Any, *args: Any) -> tuple[Any, Any]:
+    """`fn(*args)` traced once: `(replay, output shapes)`, `replay(*args)` re-binding the traced
+    program (cheap, unlike tracing `fn` again: an MJX env step takes seconds), e.g. for a
+    `lax.cond` branch whose other branch needs the output shapes."""
+    closed, shapes = jax.make_jaxpr(fn, return_shape=True)(*args)
+    program = jax_core.jaxpr_as_fun(closed)
+
+    def replay(*call_args: Any) -> Any:
+        return jax.tree.unflatten(jax.tree.structure(shapes), program(*jax.tree.leaves(call_args)))
+
+    return replay, shapes
+
+
+def zeros_like_shapes(shapes: Any) -> Any:
+    """Zeros of every `jax.ShapeDtypeStruct` in a tree."""
+    return jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
 
 
 @struct.dataclass
@@ -214,8 +233,8 @@ class Trainer:
             return params, opt_state, jax.tree.map(jnp.mean, metrics)
 
         keys = jax.random.split(key, cfg.update_epochs)
-        zero_metrics = jax.eval_shape(lambda: epoch(params, opt_state, keys[0])[2])
-        zero_metrics = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), zero_metrics)
+        epoch, shapes = trace_once(epoch, params, opt_state, keys[0])
+        zero_metrics = zeros_like_shapes(shapes[2])
 
         def cond(carry):
             i, _, _, metrics = carry
@@ -242,10 +261,11 @@ class Trainer:
         """
         if active is None:
             return jax.lax.scan(lambda r, _: self.update(r), runner, None, length=num_updates)
-        skipped = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), jax.eval_shape(self.update, runner)[1])
 
         def body(r, i):
-            return jax.lax.cond(i < active, self.update, lambda r: (r, skipped), r)
+            update, shapes = trace_once(self.update, r)  # traced once, not again for the shapes
+            skipped = zeros_like_shapes(shapes[1])
+            return jax.lax.cond(i < active, update, lambda r: (r, skipped), r)
 
         return jax.lax.scan(body, runner, jnp.arange(num_updates))
 
