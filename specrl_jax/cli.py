@@ -314,10 +314,9 @@ def train_command(args: argparse.Namespace) -> int:
     enable_compilation_cache()
     import jax
 
-    from specrl_jax.baselines import experiment
-    from specrl_jax.eval import report
-
     from specrl_jax import families
+    from specrl_jax.benchmark import experiment
+    from specrl_jax.eval import report
 
     platform = jax.devices()[0].platform
     announce_world_loading(args.env)
@@ -367,10 +366,9 @@ def run_command(args: argparse.Namespace) -> int:
     enable_compilation_cache()
     import jax
 
-    from specrl_jax.baselines import experiment
-    from specrl_jax.eval import report
-
     from specrl_jax import families
+    from specrl_jax.benchmark import experiment
+    from specrl_jax.eval import report
 
     gpu = jax.devices()[0].platform != "cpu"
     total = args.total_steps or families.default_total_steps(jax.devices()[0].platform)

@@ -33,7 +33,6 @@ import specrl_jax
 from specrl_jax.envs import compiled, spaces
 from specrl_jax.envs.wrappers import batch
 
-
 #: set in a child forked from a process whose JAX backends had started
 _FORKED_AFTER_JAX = False
 

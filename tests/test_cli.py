@@ -80,7 +80,7 @@ def test_oracle_needs_letter_world():
 def test_env_options_parse_as_literals_and_reach_the_world():
     import argparse
 
-    from specrl_jax.baselines import experiment
+    from specrl_jax.benchmark import experiment
 
     assert cli.env_option("image_size=64") == ("image_size", 64)
     assert cli.env_option("partial=True") == ("partial", True)

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from specrl_jax import automata, families, specs
-from specrl_jax.baselines import experiment
 from specrl_jax.baselines.ppo.networks import MLP, Categorical, PolicyOutput, critic
 from specrl_jax.baselines.ppo.train import Method, PPOConfig, world_config
 from specrl_jax.baselines.spec import MethodSpec, get_method, register_method, unregister_method
 from specrl_jax.baselines.train_env import TaskTrainEnv
+from specrl_jax.benchmark import experiment
 from specrl_jax.envs import registry
 from specrl_jax.tasks import StatefulPolicy, TaskEnv
 from tests.eval.tiny_world import TinyConfig, TinyParams, TinyWorld

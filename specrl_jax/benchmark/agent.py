@@ -193,7 +193,7 @@ def _same_world(trained_on: str, env_id: str, source: str) -> None:
 
 
 def _run_directory(path: Path, env_id: str) -> TrainedRun:
-    from specrl_jax.baselines import experiment
+    from specrl_jax.benchmark import experiment
 
     config = json.loads((path / "config.json").read_text())
     _same_world(config["env"], env_id, str(path))
@@ -298,7 +298,7 @@ def evaluate(agent: Agent | TrainedRun, env_id: str, suites: Sequence[str], epis
     """Evaluate an agent or a trained run on `suites` of `env_id`: one compiled evaluator for
     every suite (`eval.suites.evaluate_suites`). A trained run evaluates each of its seeds with
     its own evaluation seed (`seeds` is then ignored). Returns one `SuiteResult` per suite."""
-    from specrl_jax.baselines import experiment
+    from specrl_jax.benchmark import experiment
     from specrl_jax.envs.registry import make
     from specrl_jax.eval.suites import check_suites, evaluate_suites
     from specrl_jax.tasks import TaskEnv

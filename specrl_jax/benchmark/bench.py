@@ -101,7 +101,7 @@ def _text(value: float | None, digits: int = 2) -> str:
 def world_envs(world: str) -> tuple[str, list[tuple[str, tuple[str, ...]]]]:
     """`(family, [(env ID, its paper suites)])` of a benchmark world (`WORLDS`), a family name
     or an env ID."""
-    from specrl_jax.baselines.experiment import suites_for
+    from specrl_jax.benchmark.experiment import suites_for
 
     if world in WORLDS:
         family, env_ids = WORLDS[world]

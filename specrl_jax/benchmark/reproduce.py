@@ -54,7 +54,7 @@ def default_train(cell: Cell, run_dir: Path, log: Log) -> tuple[Any, dict[str, A
     maps (65,536 on an accelerator, 4,096 on a CPU)."""
     import jax
 
-    from specrl_jax.baselines import experiment
+    from specrl_jax.benchmark import experiment
 
     platform = jax.devices()[0].platform
     overrides = experiment.default_overrides(platform, cell.total_steps,
@@ -67,7 +67,7 @@ def default_train(cell: Cell, run_dir: Path, log: Log) -> tuple[Any, dict[str, A
 
 
 def default_load(cell: Cell, path: Path, num_seeds: int) -> Any:
-    from specrl_jax.baselines import experiment
+    from specrl_jax.benchmark import experiment
 
     return experiment.load_params(cell.method, cell.env_id, path, num_seeds,
                                   env_options=dict(cell.env_options) or None,
@@ -76,7 +76,7 @@ def default_load(cell: Cell, path: Path, num_seeds: int) -> Any:
 
 def default_evaluate(cell: Cell, params: Any, suites: Sequence[str], log: Log) -> list:
     """`SuiteResult`s of `suites` for seeds 1..cell.seeds (`params` with a seed axis)."""
-    from specrl_jax.baselines import experiment
+    from specrl_jax.benchmark import experiment
 
     if not cell.trains:
         return evaluate_coordinator(cell, params, suites, log)
@@ -228,7 +228,7 @@ def record_trajectories(cell: Cell, params: Any, episodes: int = 3) -> dict[str,
     import numpy as np
 
     from specrl_jax import automata, specs
-    from specrl_jax.baselines import experiment
+    from specrl_jax.benchmark import experiment
     from specrl_jax.envs.registry import make
     from specrl_jax.eval.evaluate import record_episodes
     from specrl_jax.tasks import TaskEnv
@@ -313,7 +313,8 @@ def evaluate_coordinator(cell: Cell, params: Any, suites: Sequence[str], log: Lo
     import numpy as np
 
     from specrl_jax import specs
-    from specrl_jax.baselines import experiment, gcrl
+    from specrl_jax.baselines import gcrl
+    from specrl_jax.benchmark import experiment
     from specrl_jax.envs.registry import make
     from specrl_jax.eval.suites import evaluate_suites
     from specrl_jax.tasks.coordinator import SystemWorld, check_spec_agents, make_coordinator

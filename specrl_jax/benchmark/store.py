@@ -116,7 +116,7 @@ class Store:
 
     def load_params(self, cell: Cell | str) -> Any:
         """Seed 1's parameters with a leading seed axis of 1 (`experiment.load_params`)."""
-        from specrl_jax.baselines import experiment
+        from specrl_jax.benchmark import experiment
 
         c = grid.cell(cell) if isinstance(cell, str) else cell
         return experiment.load_params(c.method, c.env_id, self.params_path(c), 1,

@@ -24,8 +24,8 @@ from specrl_jax import automata
 from specrl_jax.envs.wrappers import select_tree
 from specrl_jax.eval import original_ldba
 from specrl_jax.eval.metrics import EpisodeTable, per_seed_metrics, summarize
-from specrl_jax.tasks.policy import StatefulPolicy, as_stateful, split_action
 from specrl_jax.tasks import TaskEnv, TaskState
+from specrl_jax.tasks.policy import StatefulPolicy, as_stateful, split_action
 
 
 @dataclasses.dataclass(frozen=True)

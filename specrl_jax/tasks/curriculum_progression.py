@@ -27,8 +27,8 @@ import numpy as np
 from specrl_jax.specs import CurriculumSampler
 from specrl_jax.specs.curricula import CurriculumState
 from specrl_jax.specs.formulas import sequence_to_formula
-from specrl_jax.tasks.curriculum_stages import CurriculumStages, StagedSource
 from specrl_jax.tasks.curriculum_stages import NEVER_TRUE as NEVER_TRUE  # this module's task id
+from specrl_jax.tasks.curriculum_stages import CurriculumStages, StagedSource
 from specrl_jax.tasks.progression import ProgressionBank, ProgressionSource, ProgressionTask
 from specrl_jax.tasks.sources import Events
 

@@ -6,13 +6,13 @@ import warnings
 
 import jax
 import pytest
+from chain import ChainMethod
 
 import specrl_jax
 from specrl_jax import cli
 from specrl_jax.baselines import runs
 from specrl_jax.baselines.ppo import PPOConfig, make_train
 from specrl_jax.eval import evaluate, random_policy
-from chain import ChainMethod
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -99,7 +99,7 @@ def test_an_unknown_method_option_lists_the_accepted_ones(capsys):
 
 
 def test_method_options_reach_training_and_evaluation(monkeypatch, tmp_path):
-    from specrl_jax.baselines import experiment
+    from specrl_jax.benchmark import experiment
 
     seen = {}
 
@@ -186,7 +186,7 @@ def test_ctrl_c_names_the_checkpointed_update_and_the_same_call_resumes(tmp_path
 
 
 def test_ctrl_c_at_the_command_line_is_one_line(monkeypatch, tmp_path, capsys):
-    from specrl_jax.baselines import experiment
+    from specrl_jax.benchmark import experiment
 
     def interrupted(*args, **kwargs):
         raise runs.TrainingInterrupted(tmp_path, 7)
@@ -198,7 +198,7 @@ def test_ctrl_c_at_the_command_line_is_one_line(monkeypatch, tmp_path, capsys):
 
 
 def test_the_cpu_announces_the_steps_it_trains_and_a_small_map_bank(monkeypatch, tmp_path, capsys):
-    from specrl_jax.baselines import experiment
+    from specrl_jax.benchmark import experiment
 
     seen = []
 
@@ -217,7 +217,7 @@ def test_the_cpu_announces_the_steps_it_trains_and_a_small_map_bank(monkeypatch,
 def test_a_camera_world_at_256_pixels_on_a_cpu_is_warned_about():
     from types import SimpleNamespace
 
-    from specrl_jax.baselines import experiment
+    from specrl_jax.benchmark import experiment
     from specrl_jax.envs.zone.config import level_config
 
     with pytest.warns(UserWarning, match="256 x 256 pixels on a CPU.*--env-option image_size=64"):

@@ -5,11 +5,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from tiny_learning import early_late, train_rows
 
 import specrl_jax
 from specrl_jax import automata
 from specrl_jax.baselines import gcrl
-from tiny_learning import early_late, train_rows
 from specrl_jax.baselines.ppo.networks import Categorical, DiagGaussian, PolicyOutput
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.eval import evaluate

@@ -6,11 +6,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import spot
+from tiny_learning import early_late, train_rows
 
 from specrl_jax import automata
 from specrl_jax.baselines import ltl2action
 from specrl_jax.baselines.encoders import obs_parts
-from tiny_learning import early_late, train_rows
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.tasks import TaskEnv
 from specrl_jax.tasks.progression import (

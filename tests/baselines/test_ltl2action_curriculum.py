@@ -7,10 +7,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import spot
+from tiny_learning import early_late, train_rows
 
 from specrl_jax import automata
 from specrl_jax.baselines import ltl2action
-from tiny_learning import early_late, train_rows
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.specs import CurriculumSampler, curriculum
 from specrl_jax.tasks import SequenceSource

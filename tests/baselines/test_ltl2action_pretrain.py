@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from tiny_learning import early_late, train_rows
 
 import specrl_jax
 from specrl_jax.automata import zero_or_one
@@ -17,7 +18,6 @@ from specrl_jax.baselines.ltl2action import pretrain as ltl2action_pretrain
 from specrl_jax.baselines.ppo import make_train
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.tasks.progression import num_features
-from tiny_learning import early_late, train_rows
 
 PROPS = ("a", "b", "c")
 # a random letter keeps an until's left side with probability 1/2: random success about 0.375

@@ -5,11 +5,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from tiny_learning import early_late, train_rows
 
 import specrl_jax
 from specrl_jax import automata
 from specrl_jax.baselines import deepltl, genz
-from tiny_learning import early_late, train_rows
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.eval import evaluate
 from specrl_jax.tasks import TaskEnv
@@ -159,7 +159,7 @@ def test_sequence_encoder_reads_only_the_remaining_pairs():
 
 
 def test_evaluate_runs_each_trained_seed_on_the_suite_protocol(monkeypatch):
-    from specrl_jax.baselines import experiment
+    from specrl_jax.benchmark import experiment
 
     monkeypatch.setattr("specrl_jax.specs.suite", lambda name: ["F a", "!b U c"])
     world, params = make_letter_world(LetterConfig())
@@ -190,8 +190,8 @@ def test_committed_genz_parameters_give_the_same_network_with_the_library_convol
     # under flax's nn.Conv with the same parameters
     import flax.linen as nn
 
-    from specrl_jax.baselines import encoders, experiment
-    from specrl_jax.benchmark import store
+    from specrl_jax.baselines import encoders
+    from specrl_jax.benchmark import experiment, store
 
     path = store.params_path("LetterLTL0-v0/genz")
     params = jax.tree.map(lambda x: x[0], experiment.load_params("genz", "LetterLTL0-v0", path, 1))

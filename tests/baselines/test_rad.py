@@ -5,11 +5,11 @@ DFAs through the automaton states, solves them under `eval.evaluate`."""
 import jax
 import numpy as np
 import pytest
+from tiny_learning import early_late, train_rows
 
 from specrl_jax import automata
 from specrl_jax.automata import rad_sampler
 from specrl_jax.baselines import rad
-from tiny_learning import early_late, train_rows
 from specrl_jax.baselines.rad.encoder import RADEncoder, build_graphs, graph_of
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.eval import evaluate

@@ -7,11 +7,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from tiny_learning import early_late, train_rows
 
 from specrl_jax import automata
 from specrl_jax.automata import translate
 from specrl_jax.baselines import rad
-from tiny_learning import early_late, train_rows
 from specrl_jax.baselines.rad.encoder import RADEncoder, graph_of
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
 from specrl_jax.specs import CurriculumSampler, curriculum

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from specrl_jax.automata import zero_or_one
-from specrl_jax.baselines.rad import pretrain as rad_pretrain
 from specrl_jax.baselines.ppo import make_train
+from specrl_jax.baselines.rad import pretrain as rad_pretrain
 
 
 def test_pretraining_on_the_symbol_task_learns_and_saves_the_encoder(tmp_path):

@@ -34,7 +34,8 @@ def checksum(params):
 TWO_DEVICES = CHAIN + """
 import json, tempfile
 import jax.numpy as jnp
-from specrl_jax.baselines import experiment, runs
+from specrl_jax.baselines import runs
+from specrl_jax.benchmark import experiment
 from specrl_jax.baselines.ppo import Trainer
 from specrl_jax.eval.evaluate import make_evaluator
 from specrl_jax.tasks import TaskEnv

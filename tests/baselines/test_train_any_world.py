@@ -10,10 +10,11 @@ import pytest
 
 import specrl_jax
 from specrl_jax import automata, families
-from specrl_jax.baselines import deepltl, experiment, gcrl, genz, ltl2action, rad
+from specrl_jax.baselines import deepltl, gcrl, genz, ltl2action, rad
 from specrl_jax.baselines.ppo import make_train
 from specrl_jax.baselines.spec import get_method
 from specrl_jax.baselines.train_env import TaskTrainEnv
+from specrl_jax.benchmark import experiment
 from specrl_jax.eval.evaluate import run_episode
 from specrl_jax.tasks import TaskEnv, as_stateful
 

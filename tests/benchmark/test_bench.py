@@ -13,9 +13,8 @@ import numpy as np
 import pytest
 
 from specrl_jax import cli, specs
-from specrl_jax.baselines import experiment
 from specrl_jax.benchmark import agent as agents
-from specrl_jax.benchmark import bench
+from specrl_jax.benchmark import bench, experiment
 
 EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
 IND = "letter/finite/ind"

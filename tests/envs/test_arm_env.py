@@ -16,7 +16,8 @@ import scipy.stats
 from gymnasium.utils.env_checker import check_env
 
 import specrl_jax
-from specrl_jax.envs.arm import ArmConfig, ArmEnv, layout as layout_lib
+from specrl_jax.envs.arm import ArmConfig, ArmEnv
+from specrl_jax.envs.arm import layout as layout_lib
 from specrl_jax.envs.arm import model as arm_model
 from specrl_jax.envs.registry import list_envs
 

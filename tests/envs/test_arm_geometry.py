@@ -9,10 +9,9 @@ import mujoco
 import numpy as np
 import pytest
 
-from specrl_jax.envs.arm import ArmConfig, ArmEnv, ArmState
+from specrl_jax.envs.arm import ArmConfig, ArmEnv, ArmState, sensors
 from specrl_jax.envs.arm import layout as layout_lib
 from specrl_jax.envs.arm import model as arm_model
-from specrl_jax.envs.arm import sensors
 
 # The original's neutral pose, measured in PyBullet (reference B6): frame origin, COM, COM xyzw
 NEUTRAL = {

@@ -10,7 +10,6 @@ import specrl_jax
 from specrl_jax.envs import batch, checked, letter_maps
 from specrl_jax.envs.letter import LetterConfig, LetterWorld, make_letter_world
 
-
 # ------------------------------------------------------------------ letter densities and loops
 
 

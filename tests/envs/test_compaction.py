@@ -8,6 +8,7 @@ import pytest
 
 from specrl_jax.envs.compaction import where_needed
 
+
 def expensive(x):
     return {"y": jnp.sin(x["a"]) * x["scale"], "z": jnp.sum(x["a"])}
 

@@ -16,8 +16,8 @@ from envs.ant_states import settled_ant
 
 import specrl_jax
 from specrl_jax.envs.zone import ZoneConfig
-from specrl_jax.envs.zone.layout import from_bank
 from specrl_jax.envs.zone import physics as zone_physics
+from specrl_jax.envs.zone.layout import from_bank
 from specrl_jax.envs.zone.physics import Physics, resolve_physics, warp_available
 
 D4 = [

@@ -20,7 +20,12 @@ import specrl_jax
 import specrl_jax.gym  # noqa: F401  (registers the IDs with Gymnasium)
 from specrl_jax.envs.zone import ZoneConfig
 from specrl_jax.envs.zone.camera import (
-    ALL_ROBOT_GEOMS, MOUNTS, ROBOT_GEOMS, ZONE_RGB, Camera, zone_height,
+    ALL_ROBOT_GEOMS,
+    MOUNTS,
+    ROBOT_GEOMS,
+    ZONE_RGB,
+    Camera,
+    zone_height,
 )
 from specrl_jax.envs.zone.models import load_model, robot_xml
 

@@ -14,8 +14,8 @@ from eval.tiny_world import (
 )
 
 from specrl_jax.eval.evaluate import evaluate, make_evaluator, record_episodes
-from specrl_jax.tasks.policy import StatefulPolicy, random_policy, split_action
 from specrl_jax.tasks import TaskEnv
+from specrl_jax.tasks.policy import StatefulPolicy, random_policy, split_action
 
 ENV = TinyWorld()
 PARAMS = TinyParams(max_steps=12)

@@ -15,7 +15,7 @@ import numpy as np
 
 from specrl_jax.envs.zone.c_reference import classic_rk4_step
 from specrl_jax.envs.zone.models import Solver, robot_xml
-from specrl_jax.envs.zone.motion import WELD_SOLREF, ORIGINAL_INTEGRATOR
+from specrl_jax.envs.zone.motion import ORIGINAL_INTEGRATOR, WELD_SOLREF
 
 
 def _yaw_quat(yaw: float) -> str:
