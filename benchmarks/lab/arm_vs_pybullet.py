@@ -14,16 +14,22 @@ our MJX physics with the same action sequences from the neutral pose, then repor
   (the original's joint targets) against ours on random joint configurations;
 - mode 1's link-to-sphere distances (`getClosestPoints`, the original's labels and features)
   against ours from the env's poses and hulls;
-- constant actions that press the arm into the table: how far the engines part in contact.
+- constant actions that press the arm into the table: how far the engines part in contact;
+- random-action episodes with the table whose fingers reach it (nearly all do within 100 steps
+  from the neutral pose): the grasp target's drift from PyBullet's, before and after the first
+  finger contact.
 
 PyBullet is an optional extra (`pip install -e ".[pybullet]"`; wheels for CPython up to 3.11).
 `--write-reference` stores PyBullet's rollouts in `tests/envs/data/` for the CPU test
 `tests/envs/test_arm_physics.py::test_motor_matches_pybullet_on_the_same_actions`, which then
-needs no PyBullet. The random and saturated rollouts run without the table and floor (from the
-neutral pose they reach neither); the pressing ones with them.
+needs no PyBullet. The random and saturated rollouts run without the table and floor in both
+engines; the pressing and table episodes with them. `--parts table` runs only the table episodes
+(and with `--write-reference` replaces only their arrays in the stored file).
 
     python benchmarks/lab/arm_vs_pybullet.py --write-reference \
         --out benchmarks/results/arm_vs_pybullet.json
+    python benchmarks/lab/arm_vs_pybullet.py --parts table --write-reference \
+        --out benchmarks/results/arm_vs_pybullet_table.json
 """
 
 from __future__ import annotations
@@ -64,15 +70,22 @@ def pybullet_arm():
     return pybullet, robot
 
 
+def add_table(pybullet) -> int:
+    """Adds the original's table and floor (reference B3; Bullet's default friction); returns the
+    table's body id."""
+    bodies = []
+    for half, centre in (([0.55, 0.35, 0.2], [-0.3, 0, -0.2]), ([3, 3, 0.01], [0, 0, -0.41])):
+        box = pybullet.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half)
+        bodies.append(pybullet.createMultiBody(0, box, basePosition=centre))
+    return bodies[0]
+
+
 def pybullet_rollouts(actions: np.ndarray, table: bool = False) -> np.ndarray:
     """float64[E, T+1, 7] joint angles (rad) of PyBullet's arm under `actions` float[E, T, 7],
-    each episode from the neutral pose at rest; with `table`, the original's table and floor
-    (reference B3; Bullet's default friction)."""
+    each episode from the neutral pose at rest; with `table`, the original's table and floor."""
     pybullet, robot = pybullet_arm()
     if table:
-        for half, centre in (([0.55, 0.35, 0.2], [-0.3, 0, -0.2]), ([3, 3, 0.01], [0, 0, -0.41])):
-            box = pybullet.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half)
-            pybullet.createMultiBody(0, box, basePosition=centre)
+        add_table(pybullet)
     angles = lambda: [pybullet.getJointState(robot, j)[0] for j in ARM_JOINTS]
     qpos = np.zeros((actions.shape[0], actions.shape[1] + 1, 7))
     for e, episode in enumerate(actions):
@@ -89,6 +102,64 @@ def pybullet_rollouts(actions: np.ndarray, table: bool = False) -> np.ndarray:
             qpos[e, t + 1] = angles()
     pybullet.disconnect()
     return qpos
+
+
+def arm_state(pybullet, robot) -> tuple[np.ndarray, np.ndarray]:
+    """PyBullet's joint angles float64[7] (rad) and grasp target float64[3] (m, FK of them)."""
+    qpos = np.asarray([pybullet.getJointState(robot, j)[0] for j in ARM_JOINTS])
+    point = pybullet.getLinkState(robot, GRASP_TARGET, computeForwardKinematics=True)[4]
+    return qpos, np.asarray(point)
+
+
+def pybullet_table_episodes(count: int, steps: int, seed: int, max_draws: int = 4096) -> dict:
+    """PyBullet's episodes with the table and floor, under uniform random joint actions from the
+    neutral pose, whose fingers touch the table: the first `count` of those drawn from `seed`.
+
+    Returns a dict of `actions` float32[count, steps, 7], `qpos` float64[count, steps+1, 7]
+    (rad), `grasp_target` float64[count, steps+1, 3] (m, FK of `qpos`), `first_contact`
+    int32[count] (the env step during which a finger first touches the table) and `drawn`
+    (episodes drawn to find them)."""
+    pybullet, robot = pybullet_arm()
+    table = add_table(pybullet)
+    rng = np.random.default_rng(seed)
+    kept, drawn = [], 0
+    while len(kept) < count and drawn < max_draws:
+        drawn += 1
+        actions = rng.uniform(-1, 1, (steps, 7)).astype(np.float32)
+        for j, q in zip(ARM_JOINTS + FINGER_JOINTS, list(arm_model.NEUTRAL_QPOS) + [0.0, 0.0]):
+            pybullet.resetJointState(robot, j, q, 0.0)
+        states, first = [arm_state(pybullet, robot)], -1
+        for t, action in enumerate(actions):
+            target = list(states[-1][0] + 0.05 * action) + [0.0, 0.0]
+            pybullet.setJointMotorControlArray(robot, ARM_JOINTS + FINGER_JOINTS,
+                                               pybullet.POSITION_CONTROL,
+                                               targetPositions=target, forces=FORCES)
+            for _ in range(SUBSTEPS):
+                pybullet.stepSimulation()
+                if first < 0 and any(c[3] in FINGER_JOINTS
+                                     for c in pybullet.getContactPoints(robot, table)):
+                    first = t
+            states.append(arm_state(pybullet, robot))
+        if first >= 0:
+            qpos, points = (np.stack(x) for x in zip(*states))
+            kept.append((actions, qpos, points, first))
+    pybullet.disconnect()
+    actions, qpos, points, first = (np.stack(x) for x in zip(*kept))
+    return {"actions": actions, "qpos": qpos, "grasp_target": points,
+            "first_contact": first.astype(np.int32), "drawn": drawn}
+
+
+def table_drift(theirs: dict, ours_qpos: np.ndarray) -> dict:
+    """The grasp target's distance (m) from PyBullet's in the table episodes `theirs`
+    (`pybullet_table_episodes`), ours from our joint angles `ours_qpos` float[E, T+1, 7]:
+    median and max over episodes after 10, 20, 50 and 100 steps, and the largest before each
+    episode's first finger contact."""
+    points = our_grasp_target(ours_qpos.reshape(-1, 7)).reshape(*ours_qpos.shape[:2], 3)
+    gap = np.linalg.norm(points - theirs["grasp_target"], axis=-1)
+    before = max(gap[e, :f + 1].max() for e, f in enumerate(theirs["first_contact"]))
+    return {"steps": {str(t): {"median": float(np.median(gap[:, t])), "max": float(gap[:, t].max())}
+                      for t in (10, 20, 50, 100) if t < gap.shape[1]},
+            "before_first_contact_max": float(before)}
 
 
 def pybullet_grasp_target(qpos: np.ndarray) -> np.ndarray:
@@ -116,6 +187,13 @@ def pybullet_ik(qpos: np.ndarray, targets: np.ndarray) -> np.ndarray:
                                                           [1.0, 0.0, 0.0, 0.0])[:7])
     pybullet.disconnect()
     return np.asarray(solved)
+
+
+def our_grasp_target(qpos: np.ndarray) -> np.ndarray:
+    """float64[K, 3]: our grasp-target position (m) at joint angles `qpos` float[K, 7]."""
+    ik = EndEffectorIK(arm_model.load_model(table_contacts=False))
+    points = jax.jit(jax.vmap(lambda x: ik.pose(x)[0]))(jnp.asarray(qpos, jnp.float32))
+    return np.asarray(points, np.float64)
 
 
 def our_ik(qpos: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -198,8 +276,16 @@ def main() -> None:
     parser.add_argument("--write-reference", action="store_true",
                         help=f"store PyBullet's rollouts in {REFERENCE.relative_to(ROOT)}")
     parser.add_argument("--out", default=None, help="a JSON file of the figures")
+    parser.add_argument("--parts", choices=("all", "table"), default="all",
+                        help="table: only the random-action episodes that touch the table")
+    parser.add_argument("--table-episodes", type=int, default=32,
+                        help="table episodes to record (the fingers reach the table)")
     args = parser.parse_args()
     import pybullet  # noqa: F401  (fail before any work when it is missing)
+
+    if args.parts == "table":
+        table_main(args)
+        return
 
     actions = np.random.default_rng(args.seed).uniform(
         -1, 1, (args.episodes, args.steps, 7)).astype(np.float32)
@@ -321,6 +407,44 @@ def main() -> None:
         }
         Path(args.out).write_text(json.dumps(record, indent=1))
         print(f"wrote {args.out}")
+
+
+def table_main(args: argparse.Namespace) -> None:
+    """The random-action episodes that touch the table: PyBullet's against ours."""
+    theirs = pybullet_table_episodes(args.table_episodes, args.steps, args.seed)
+    ours = our_rollouts(theirs["actions"], table=True)
+    drift = table_drift(theirs, ours)
+    print(f"{len(theirs['actions'])} of {theirs['drawn']} random-action episodes touch the table "
+          f"with the fingers (first contact at steps {theirs['first_contact'].min()}-"
+          f"{theirs['first_contact'].max()}); grasp target from PyBullet's, before the first "
+          f"contact at most {drift['before_first_contact_max'] * 1e3:.2f} mm")
+    for t, fig in drift["steps"].items():
+        print(f"  after {t:>3} steps: median {fig['median'] * 100:.2f} cm, max "
+              f"{fig['max'] * 100:.2f} cm")
+    if args.write_reference:
+        stored = dict(np.load(REFERENCE)) if REFERENCE.exists() else {}
+        stored.update(table_actions=theirs["actions"],
+                      table_qpos=theirs["qpos"].astype(np.float32),
+                      table_grasp_target=theirs["grasp_target"].astype(np.float32),
+                      table_first_contact=theirs["first_contact"])
+        np.savez_compressed(REFERENCE, **stored)
+        print(f"wrote the table episodes to {REFERENCE}")
+    if args.out:
+        record = {"episodes": len(theirs["actions"]), "drawn": theirs["drawn"],
+                  "steps": args.steps, "seed": args.seed,
+                  "first_contact_steps": theirs["first_contact"].tolist(),
+                  "grasp_target_drift_m": drift,
+                  "pybullet_api_version": pybullet_api_version(),
+                  "versions": {"jax": jax.__version__, "device": str(jax.devices()[0])},
+                  "date": time.strftime("%Y-%m-%d")}
+        Path(args.out).write_text(json.dumps(record, indent=1))
+        print(f"wrote {args.out}")
+
+
+def pybullet_api_version() -> int:
+    import pybullet
+
+    return pybullet.getAPIVersion()
 
 
 if __name__ == "__main__":
