@@ -14,10 +14,10 @@ from jax.experimental import checkify
 
 from specrl_jax.envs import spaces
 from specrl_jax.envs.arm import layout as layout_lib
-from specrl_jax.envs.arm.ik import EndEffectorIK
 from specrl_jax.envs.arm import model as arm_model
 from specrl_jax.envs.arm import sensors
 from specrl_jax.envs.arm.config import ArmConfig
+from specrl_jax.envs.arm.ik import EndEffectorIK
 from specrl_jax.envs.arm.physics import Physics, PhysicsState
 from specrl_jax.envs.base import Env, Info, Obs
 
