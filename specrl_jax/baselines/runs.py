@@ -113,7 +113,8 @@ def init_seeds(trainer: Trainer, key: jax.Array, num_seeds: int,
     init = compile_logged(trainer.init, (keys[0],), "the initial state (env reset, network init)",
                           log)
     seeds = [init(k) for k in keys]
-    return jax.tree.map(lambda *xs: jnp.stack(xs), *seeds)
+    # one program for the whole tree: stacking leaf by leaf compiles one per leaf shape
+    return jax.jit(lambda *trees: jax.tree.map(lambda *xs: jnp.stack(xs), *trees))(*seeds)
 
 
 def train_chunks(trainer: Trainer, runner: RunnerState, num_seeds: int, chunk_updates: int,
