@@ -91,7 +91,7 @@ def _free_port() -> int:
 
 def _start(run_dir: Path, store: Path, group: list, devices: int, **environ: str):
     env = {**os.environ, "JAX_PLATFORMS": "cpu", **environ,
-           "XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}",
+           "XLA_FLAGS": f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count={devices}",
            "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     code = textwrap.dedent(WORKER).format(here=str(HERE))
     return subprocess.Popen([sys.executable, "-c", code, str(run_dir), str(store),
