@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import importlib
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -24,6 +25,10 @@ def exports(package: str, modules: dict[str, tuple[str, ...]]) -> Callable[[str]
     def __getattr__(name: str) -> Any:
         if name not in owner:
             raise AttributeError(f"module {package!r} has no attribute {name!r}")
-        return getattr(importlib.import_module(f"{package}.{owner[name]}"), name)
+        value = getattr(importlib.import_module(f"{package}.{owner[name]}"), name)
+        # bound on the package: later lookups skip this function, and a submodule of the same
+        # name (`envs.checked`), which importing it bound there, no longer shadows the export
+        setattr(sys.modules[package], name, value)
+        return value
 
     return __getattr__

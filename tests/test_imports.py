@@ -40,3 +40,13 @@ def test_world_names_resolve_on_first_use():
     assert arm.ArmEnv.__name__ == "ArmEnv" and multi.MultiAutoReset.__name__ == "MultiAutoReset"
     with pytest.raises(AttributeError, match="has no attribute 'ZoneWorld'"):
         zone.ZoneWorld  # noqa: B018
+
+
+def test_a_lazy_export_is_not_shadowed_by_its_module_of_the_same_name():
+    """`envs.checked` is a function in the module `envs/checked.py`: importing the module binds
+    its name on the package, which must not replace the exported function."""
+    code = ("import importlib; from specrl_jax.envs import checked as first; "
+            "importlib.import_module('specrl_jax.envs.checked'); "
+            "from specrl_jax.envs import checked as second; "
+            "assert callable(first) and second is first, (first, second)")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)

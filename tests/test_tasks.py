@@ -218,8 +218,12 @@ def test_env_symbol_runs_the_automaton_as_the_label_does():
             return state, (state.q, reward, terminated, info["accepted"])
 
         keys = jax.random.split(jax.random.key(0), 32)
-        _, state = jax.vmap(task.reset, (0, None, 0))(keys, params, jnp.arange(32) % 4)
-        return jax.jit(lambda s: jax.lax.scan(body, s, jax.random.split(keys[0], 120))[1])(state)
+        @jax.jit
+        def episodes(keys):
+            _, state = jax.vmap(task.reset, (0, None, 0))(keys, params, jnp.arange(32) % 4)
+            return jax.lax.scan(body, state, jax.random.split(keys[0], 120))[1]
+
+        return episodes(keys)
 
     with_symbol = run(TaskEnv(env, specs))
     without = run(TaskEnv(EditedInfo(env, lambda i: {"propositions": i["propositions"]}), specs))
