@@ -99,20 +99,24 @@ def suite_table(env_id: str, suite: str, rows: Sequence[tuple[Cell, dict[str, An
 
 
 def grid_table(store: Store) -> list[str]:
+    """One row per cell with results; the cells not yet run as one line per world."""
     lines = [("| cell | step | state | seeds evaluated | env steps per seed | device | "
               "training s | evaluation s |"), "|---|---|---|---|---|---|---|---|"]
+    missing: dict[str, list[str]] = {}
     for c in grid.GRID:
         record = store.read(c)
-        state = store.state(c)
         if record is None:
-            lines.append(f"| `{c.name}` | {c.step} | missing | 0/{c.seeds} | - | - | - | - |")
+            missing.setdefault(f"`{c.env_id}` (step {c.step})", []).append(c.name.split("/", 1)[1])
             continue
         steps = record.get("training", {}).get("env_steps_per_seed")
         wall = record.get("wall_s", {})
         lines.append(
-            f"| `{c.name}` | {c.step} | {state} | {suite_seeds(record)}/{c.seeds} | "
+            f"| `{c.name}` | {c.step} | {store.state(c)} | {suite_seeds(record)}/{c.seeds} | "
             f"{f'{steps:,}' if steps else '-'} | {record.get('device') or '-'} | "
             f"{_fmt(wall.get('train'), None, 0)} | {_fmt(wall.get('eval'), None, 0)} |")
+    if missing:
+        lines += ["", "Not yet run: " + "; ".join(f"{world}: {', '.join(methods)}"
+                                               for world, methods in missing.items()) + "."]
     return lines
 
 

@@ -68,7 +68,8 @@ def test_report_renders_a_tiny_store_deterministically(tmp_path):
     assert "| GenZ-LTL | " in page and "| 0.98 ± 0.03 | 0.00 | 5 x 100, 75 |" in page  # the paper's
     assert "| `LetterLTL0-v0/genz` | 0 | done | 5/5 |" in page
     assert "GenZ-LTL **(partial: 1/5 seeds)**" in page  # the Car cell: grid asks for 5
-    assert "| `PandaLTLReach0Joints-v0/genz` | 1 | missing | 0/5 |" in page
+    assert "`PandaLTLReach0Joints-v0` (step 1): genz, deepltl, ltl2action, gcrl, rad" in page
+    assert "| `PandaLTLReach0Joints-v0/genz` |" not in page  # cells not run: no row of dashes
     assert "### Worlds" in page and "### Test suite" in page
     assert ("| LetterLTL0-v0 \\| map-bank resets | 777M env-steps/s | H100 | 1,048,576 | "
             "2026-11-22 | `python benchmarks/env_throughput.py` |") in page
