@@ -410,6 +410,9 @@ def run_command(args: argparse.Namespace) -> int:
     "default over the package's shipped encoder of that family.",
     arg("--method", required=True, help="a method with a pretrained encoder: rad, ltl2action"),
     arg("--family", default="letter", help="world family whose alphabet it reads (default letter)"),
+    arg("--env", default=None,
+        help="a world ID whose alphabet it reads instead of the family's reference world (e.g. "
+             "PointLTL1-v0, whose moving zones can overlap: RAD's zone_overlap encoder)"),
     arg("--steps", type=positive_int, default=None,
         help="symbol-task env steps (default 10M on an accelerator, 65,536 on a CPU)"),
     arg("--num-envs", type=positive_int, default=None, help="default: the original's 16"),
@@ -430,15 +433,19 @@ def pretrain_command(args: argparse.Namespace) -> int:
         with_one = [m for m in list_methods() if get_method(m).pretrain is not None]
         raise ValueError(f"{spec.title} has no pretrained encoder; methods with one: "
                          f"{', '.join(with_one)}")
-    record = families.get(args.family)
-    if not record.reference_env:
+    from specrl_jax.envs.registry import make
+
+    record = None if args.env else families.get(args.family)
+    if record is not None and not record.reference_env:
         raise ValueError(f"world family {args.family!r} names no reference world to pretrain on")
-    out = Path(args.out) if args.out else spec.shipped_encoder(args.family)
+    env_id = args.env or record.reference_env
+    world, _ = make(env_id)
+    record = families.of(world)
+    encoder = families.encoder_name(record.name, world.alphabet, spec.encoder_per_symbol)
+    out = Path(args.out) if args.out else spec.shipped_encoder(encoder)
     enable_compilation_cache()
     import flax
     import jax
-
-    from specrl_jax.envs.registry import make
 
     device = jax.devices()[0]
     steps = args.steps or (10_000_000 if device.platform != "cpu" else 65_536)
@@ -446,19 +453,18 @@ def pretrain_command(args: argparse.Namespace) -> int:
                                              ("num_steps", args.num_steps),
                                              ("num_minibatches", args.minibatches))
              if value is not None}
-    world, _ = make(record.reference_env)
     lines: list[str] = []
 
     def log(line: str) -> None:
         lines.append(line)
         print(line, flush=True)
 
-    print(f"pretraining {spec.title}'s encoder on {record.reference_env}'s alphabet for "
+    print(f"pretraining {spec.title}'s encoder on {env_id}'s alphabet for "
           f"{steps:,} symbol-task steps (the first chunk includes compilation)", flush=True)
     start = time.perf_counter()
     params = spec.pretrain(world, record.name, jax.random.key(args.seed), steps, log, **shape)
     wall = time.perf_counter() - start
-    meta = {"method": spec.name, "family": record.name, "alphabet_env": record.reference_env,
+    meta = {"method": spec.name, "family": record.name, "alphabet_env": env_id,
             "steps": steps, "ppo_shape": shape, "seed": args.seed, "wall_s_with_compile": wall,
             "last_progress": lines[-1] if lines else "", "device": str(device.device_kind),
             "jax": jax.__version__, "flax": flax.__version__, "date": time.strftime("%Y-%m-%d"),

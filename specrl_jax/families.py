@@ -166,6 +166,18 @@ MULTI_AGENT_ZONE = WorldFamily(
 _FAMILIES: dict[str, WorldFamily] = {f.name: f for f in (LETTER, ZONE, ARM, MULTI_AGENT_ZONE)}
 
 
+def encoder_name(family: str, alphabet: Any, per_symbol: bool) -> str | None:
+    """The shipped formula encoder a world of `family` reads: the family's `formula_encoder`, or
+    `<family>_overlap` for an encoder over alphabet symbols (`per_symbol`, RAD-Embeddings' DFAs)
+    when the world's labels (`alphabet`, bool[A, P]) can hold several propositions at once. A
+    family that borrows another's encoder (the arm, Zone's) reads it as it is."""
+    name = get(family).formula_encoder if family in _FAMILIES else family
+    rows, props = len(alphabet), len(alphabet[0])
+    if name == family and per_symbol and props > 1 and rows > props + 1:
+        return f"{name}_overlap"
+    return name
+
+
 def register_family(record: WorldFamily) -> None:
     """Add a family (its worlds set `env.family = record.name`)."""
     if record.name in _FAMILIES:

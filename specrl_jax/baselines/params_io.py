@@ -62,18 +62,22 @@ def load_params_into(template: Any, stored: Any) -> Any:
 
 def load_encoder_file(family_or_path: str | os.PathLike, shipped: Callable[[str], Path],
                       method: str, title: str, input_layer: str) -> tuple[Path, Any, int]:
-    """A pretrained formula encoder: the package's shipped one of a world family ("letter",
-    "zone", at `shipped(family)`) or a file. Returns `(path, parameters, input width of the
+    """A pretrained formula encoder: the package's shipped one named `family_or_path` ("letter",
+    "zone", "zone_overlap": `families.encoder_name`; at `shipped(name)`) or a file. Returns `(path, parameters, input width of the
     layer `input_layer`)` for the method's own shape check.
 
     Raises:
         ValueError: no such file, or no `title` encoder parameters in it.
     """
     name = str(family_or_path)
-    path = shipped(name) if name in ("letter", "zone") else Path(family_or_path)
+    is_shipped = Path(name).suffix == "" and os.sep not in name
+    path = shipped(name) if is_shipped else Path(family_or_path)
     if not path.exists():
+        how = ("--env ID` with ID a world whose labels overlap, e.g. PointLTL1-v0"
+               if name.endswith("_overlap")
+               else f"--family {name}`" if is_shipped else "--family FAMILY --out PATH`")
         raise ValueError(f"no pretrained {title} encoder at {path}; make one with "
-                         f"`specrl-jax pretrain --method {method} --family letter --out PATH`")
+                         f"`specrl-jax pretrain --method {method} {how}")
     stored = load_params(path, what=f"{title} encoder parameters")
     try:
         width = int(np.shape(stored["params"][input_layer]["kernel"])[0])

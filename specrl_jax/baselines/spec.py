@@ -46,7 +46,10 @@ class MethodSpec:
             drives, where the method has one.
         pretrain: `(world, family, key, steps, log, **ppo_shape) -> encoder parameters`, where
             the method pretrains a formula encoder (`specrl-jax pretrain`).
-        shipped_encoder: `(family) -> Path`, where the package keeps its pretrained encoder.
+        shipped_encoder: `(name) -> Path`, where the package keeps its pretrained encoder of
+            that name (`families.encoder_name`).
+        encoder_per_symbol: whether the encoder reads alphabet symbols (RAD-Embeddings' DFAs),
+            so that a world whose labels can hold several propositions needs its own.
         accelerator_ppo: PPO settings that replace the method's on an accelerator's wide rollout
             (`experiment.default_overrides`; each a departure in docs/fidelity.md).
     """
@@ -67,6 +70,7 @@ class MethodSpec:
     coordinator_agent: Callable[..., Any] | None = None
     pretrain: Callable[..., Any] | None = None
     shipped_encoder: Callable[[str], Path] | None = None
+    encoder_per_symbol: bool = False
     accelerator_ppo: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
     def check_options(self, options: dict[str, Any] | None) -> None:

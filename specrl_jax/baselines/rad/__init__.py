@@ -235,8 +235,7 @@ def make_method(world: Any, params: Any, family: str | None = None, bank: DFABan
     family = families.name_of(world, family)
     alphabet = np.asarray(world.alphabet, bool)
     if encoder is None:  # the grippers-only arm's alphabet is ZoneEnv's: it reads the Zone encoder
-        encoder = (families.get(family).formula_encoder
-                   if family in families.list_families() else family)
+        encoder = families.encoder_name(family, alphabet, per_symbol=True)
     shared = bank is None and encoder_params is None
     sampler = check_sampler(family, sampler)
     cache_key = (alphabet.tobytes(), alphabet.shape, bank_size, seed, encoder, encoder_layers,
@@ -350,5 +349,5 @@ SPEC = MethodSpec(
     options=("bank", "bank_size", "seed", "encoder", "encoder_params", "encoder_layers",
              "max_table_rows", "sampler", "per_stage"),
     usable_suites=usable_suites, pretrain=pretrain_for_world,
-    shipped_encoder=rad_pretrain.encoder_path,
+    shipped_encoder=rad_pretrain.encoder_path, encoder_per_symbol=True,
 )
