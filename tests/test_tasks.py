@@ -207,6 +207,9 @@ def test_env_symbol_runs_the_automaton_as_the_label_does():
     from specrl_jax import automata
 
     env, params = specrl_jax.make("LetterLTL0-v0")
+    # resets from a bank of maps: the exact sampler, run on every step of the vmapped scan,
+    # would take most of the test's time
+    params = env.with_map_bank(jax.random.key(1), params, num_maps=64)
     formulas = ["F a & F b", "!c U (d & F e)", "GF a & GF b", "G !f & F (g | h)"]
     specs = automata.compile_suite(formulas, env.propositions, env.alphabet)
 

@@ -8,14 +8,13 @@ import jax
 import numpy as np
 
 from specrl_jax.baselines.ppo import make_train
+from xla_options import OPTIMISED
 
-#: the learning tests run hundreds of updates: compiled at XLA's default optimisation level (3),
-#: not the suite's level 0 (tests/conftest.py), under which the R-GCN's training runs twice as long
-OPTIMISED = {"xla_backend_optimization_level": 3}
 
 
 def train_rows(module: Any, method: Any, cfg: Any, updates: int) -> tuple[Any, list[dict]]:
-    """The trained runner state and one summarised metrics row per update (`module.summarise`)."""
+    """The trained runner state and one summarised metrics row per update (`module.summarise`),
+    compiled at XLA's default optimisation level (hundreds of updates)."""
     runner, metrics = jax.jit(make_train(cfg, method), compiler_options=OPTIMISED)(
         jax.random.key(1))
     rows = [module.summarise({k: float(v[i]) for k, v in metrics.items()}) for i in range(updates)]

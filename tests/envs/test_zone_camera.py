@@ -191,7 +191,9 @@ def test_geoms_left_out_never_show(robot):
     drawn = _camera(robot)
     model = load_model(robot)
     rng = np.random.default_rng(0)
-    render = lambda camera, qpos: _render(camera, qpos, [[9.0, 9.0]] * 8)[0]  # noqa: E731
+    render = lambda camera, qpos: _render(camera, qpos, [[9.0, 9.0]] * 8)  # noqa: E731
+    left_out = ~np.isin(full.geom_ids, drawn.geom_ids)
+    assert left_out.any()
     for _ in range(3):
         qpos = np.asarray(FIDELITY.QPOS[robot], np.float64)
         tilt = rng.uniform(-0.3, 0.3, 2)  # roll and pitch about the original's yaw
@@ -202,7 +204,13 @@ def test_geoms_left_out_never_show(robot):
             low, high = model.jnt_range[1:, 0], model.jnt_range[1:, 1]
             qpos[7:] = rng.uniform(low, high)
         qpos = jnp.asarray(qpos, jnp.float32)
-        np.testing.assert_array_equal(render(full, qpos), render(drawn, qpos))
+        (image_full, hit), (image, _) = render(full, qpos), render(drawn, qpos)
+        geom = np.asarray(hit.kind) - Camera.GEOM  # the full camera's first surface per pixel
+        shown = geom[(geom >= 0) & (geom < len(full.geom_ids))]
+        assert not left_out[shown].any()  # no ray meets a left-out geom first
+        # the same frame; the two programs may round one silhouette-edge pixel differently
+        differ = (image_full != image).any(-1)
+        assert differ.sum() <= 2, np.argwhere(differ)
 
 
 @pytest.mark.parametrize("robot", ["Point", "Ant"])

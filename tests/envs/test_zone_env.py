@@ -138,7 +138,10 @@ def test_batch_equals_members_and_long_rollout_stays_finite(world):
     for t in range(3):
         member_keys = jax.random.split(step_keys[t], BATCH)
         obs1, single, *_ = step(member_keys[1], single, actions[t, 1], params)
-    chex.assert_trees_all_close(obs1, jax.tree.map(lambda x: x[2, 1], obs_seq), atol=1e-5)
+    # the accelerometer comes out of the contact solve: the batched scan and the single step are
+    # different programs, which round it differently (2.6e-4 relative on XLA:CPU's loop emitters)
+    chex.assert_trees_all_close(obs1, jax.tree.map(lambda x: x[2, 1], obs_seq), atol=1e-5,
+                                rtol=1e-3)
 
 
 def test_original_flat_layout(world):
