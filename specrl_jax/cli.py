@@ -38,6 +38,17 @@ def nonnegative_int(text: str) -> int:
     return _int_at_least(text, 0)
 
 
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value > 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a finite number above 0, got {text!r}")
+    return value
+
+
 def env_option(text: str) -> tuple[str, Any]:
     """argparse type: `KEY=VALUE`, the value read as a Python literal (int, float, bool, tuple)
     or else kept as a string."""
@@ -491,6 +502,9 @@ def pretrain_command(args: argparse.Namespace) -> int:
     arg("--num-envs", type=positive_int, default=None, help="smoke runs: envs per seed"),
     arg("--rerun", action="store_true",
         help="discard the selected cells' stored results and run them end to end again"),
+    arg("--max-minutes", type=positive_float, default=None,
+        help="stop cleanly after this many minutes: training checkpoints at its next chunk (10 "
+             "updates), no further cell or evaluation group starts; the same command resumes"),
     *PROCESS_ARGS,
 )
 def reproduce_command(args: argparse.Namespace) -> int:

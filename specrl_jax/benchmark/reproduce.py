@@ -47,11 +47,13 @@ Log = Callable[[str], None]
 # One cell
 
 
-def default_train(cell: Cell, run_dir: Path, log: Log) -> tuple[Any, dict[str, Any]]:
+def default_train(cell: Cell, run_dir: Path, log: Log, max_wall_s: float | None = None
+                  ) -> tuple[Any, dict[str, Any]]:
     """Train `cell`'s seeds side by side with the family's shape on this device
     (`experiment.default_overrides`, with the method's accelerator settings) and the cell's PPO
     overrides; LetterWorld resets from a bank of `experiment.default_map_bank` exactly sampled
-    maps (65,536 on an accelerator, 4,096 on a CPU)."""
+    maps (65,536 on an accelerator, 4,096 on a CPU). `max_wall_s` stops training at the first
+    checkpoint after that many seconds (resumable)."""
     import jax
 
     from specrl_jax.benchmark import experiment
@@ -61,7 +63,7 @@ def default_train(cell: Cell, run_dir: Path, log: Log) -> tuple[Any, dict[str, A
                                              experiment.family(cell.env_id), cell.method)
     overrides.update(dict(cell.ppo))
     return experiment.train(cell.method, cell.env_id, run_dir, overrides, cell.seeds, log=log,
-                            map_bank=experiment.default_map_bank(platform),
+                            max_wall_s=max_wall_s, map_bank=experiment.default_map_bank(platform),
                             env_options=dict(cell.env_options) or None,
                             method_options=cell.options() or None)
 
@@ -103,14 +105,16 @@ def _versions() -> tuple[dict[str, str], str]:
 
 def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
              train: Callable | None = None, evaluate: Callable | None = None,
-             load: Callable | None = None, trajectories: Callable | bool = True
-             ) -> dict[str, Any]:
+             load: Callable | None = None, trajectories: Callable | bool = True,
+             deadline: float | None = None) -> dict[str, Any]:
     """Complete `cell` in `store`: train if its training is not complete, evaluate the suites
     it lacks, record the trajectory figure's episodes on a Zone LiDAR world; returns its
-    record. `train(cell, run_dir, log) -> (params, summary)`, `evaluate(cell, params, suites,
-    log) -> [SuiteResult]`, `load(cell, path, num_seeds)` and `trajectories(cell, params) ->
-    dict` replace the defaults (tests; `trajectories=False`: none recorded). In a job of several
-    processes every process calls it alike and process 0 writes."""
+    record. `train(cell, run_dir, log, max_wall_s) -> (params, summary)`, `evaluate(cell,
+    params, suites, log) -> [SuiteResult]`, `load(cell, path, num_seeds)` and
+    `trajectories(cell, params) -> dict` replace the defaults (tests; `trajectories=False`: none
+    recorded). Past `deadline` (a `time.monotonic()` value) training stops at its next
+    checkpoint and no further evaluation group starts; the cell stays partial, to resume. In a
+    job of several processes every process calls it alike and process 0 writes."""
     store = store or Store()
     train, evaluate = train or default_train, evaluate or default_evaluate
     load = load or default_load
@@ -132,7 +136,7 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
             # (re)train: suites evaluated on other parameters (fewer seeds) are stale
             log(f"{cell.name}: training {cell.seeds} x {cell.total_steps:,} steps in {run_dir}")
             start = time.perf_counter()
-            params, summary = train(cell, run_dir, log)
+            params, summary = train(cell, run_dir, log, _seconds_left(deadline))
             record["training"] = _plain(summary)
             record["training"]["complete"] = bool(summary.get("complete", True))
             record["wall_s"] = {"train": training_wall(summary, time.perf_counter() - start)}
@@ -168,6 +172,11 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     for group in (finite, [s for s in missing if s not in finite]):
         if not group:
             continue
+        if _seconds_left(deadline) == 0.0:
+            log(f"{cell.name}: time limit reached before evaluating {', '.join(group)}; rerun "
+                "to resume")
+            hosts.barrier(f"{cell.name} written")
+            return record
         log(f"{cell.name}: evaluating {', '.join(group)} ({cell.seeds} seeds x {cell.episodes} "
             "episodes)")
         start = time.perf_counter()
@@ -191,6 +200,11 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     result = store.read(cell)
     log(f"{cell.name}: {result['state']}")
     return result
+
+
+def _seconds_left(deadline: float | None) -> float | None:
+    """Seconds until `deadline` (a `time.monotonic()` value), at least 0; None: no limit."""
+    return None if deadline is None else max(0.0, deadline - time.monotonic())
 
 
 def training_wall(summary: dict[str, Any], fallback: float) -> float:
@@ -399,11 +413,14 @@ def discard(cell: Cell, store: Store) -> None:
 def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None = None,
               log: Log = print, gpus: int | None = None, cells: Sequence[Cell] | None = None,
               worker_args: Sequence[str] = (), rerun: bool = False,
-              **run_options: Any) -> dict[str, str]:
+              max_minutes: float | None = None, **run_options: Any) -> dict[str, str]:
     """Run the selected cells (`grid.select(patterns)`, or `cells`); returns `{name: state}`.
-    `rerun` discards what the store holds of them first, so they run end to end. In a job of
+    `rerun` discards what the store holds of them first, so they run end to end. After
+    `max_minutes` no cell or evaluation group starts and training stops at its next checkpoint
+    (every 10 updates), so a run fits a time slot and the same command resumes it. In a job of
     several processes (`hosts.join`) the cells run in turn (`gpus` None or 1), each over every
     process's devices; process 0 writes and logs."""
+    deadline = None if max_minutes is None else time.monotonic() + 60.0 * max_minutes
     store = store or Store()
     chosen = list(cells) if cells is not None else grid.select(patterns)
     if hosts.joined():
@@ -429,12 +446,17 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
     log(f"{len(todo)} cells to run, about {_duration(total)} of GPU time"
         + (f" on {gpus} GPUs side by side" if gpus > 1 else ""))
     if gpus > 1 and len(todo) > 1:
-        _run_side_by_side(todo, store, gpus, log, worker_args)
+        _run_side_by_side(todo, store, gpus, log, worker_args, deadline)
     else:
         spent, estimated = 0.0, 0.0
         for i, c in enumerate(todo):
+            if _seconds_left(deadline) == 0.0:
+                log(f"time limit reached: {', '.join(x.name for x in todo[i:])} not started; "
+                    "rerun the same command to resume")
+                break
             start = time.perf_counter()
-            run_cell(c, store, log=lambda line, c=c: log(f"[{c.name}] {line}"), **run_options)
+            run_cell(c, store, log=lambda line, c=c: log(f"[{c.name}] {line}"),
+                     deadline=deadline, **run_options)
             spent += time.perf_counter() - start
             estimated += grid.estimate_seconds(c)
             rest = sum(grid.estimate_seconds(x) for x in todo[i + 1:])
@@ -444,9 +466,9 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
 
 
 def _run_side_by_side(cells: Sequence[Cell], store: Store, gpus: int, log: Log,
-                      worker_args: Sequence[str]) -> None:
-    """One subprocess per cell, at most one per GPU at a time; their output is prefixed with
-    the cell's name."""
+                      worker_args: Sequence[str], deadline: float | None = None) -> None:
+    """One subprocess per cell, at most one per GPU at a time, none started after `deadline`
+    (each is given the minutes left); their output is prefixed with the cell's name."""
     import threading
 
     queue = list(cells)
@@ -461,11 +483,17 @@ def _run_side_by_side(cells: Sequence[Cell], store: Store, gpus: int, log: Log,
 
     while queue or running:
         for gpu in range(gpus):
+            left = _seconds_left(deadline)
+            if left == 0.0 and queue:
+                log(f"time limit reached: {', '.join(x.name for x in queue)} not started; "
+                    "rerun the same command to resume")
+                queue.clear()
             if gpu not in running and queue:
                 c = queue.pop(0)
                 env = dict(os.environ, CUDA_VISIBLE_DEVICES=str(gpu))
+                limit = [] if left is None else ["--max-minutes", f"{left / 60.0:.3f}"]
                 cmd = [sys.executable, "-m", "specrl_jax.benchmark.reproduce", "--cells", c.name,
-                       "--store", str(store.root), "--gpus", "1", *worker_args]
+                       "--store", str(store.root), "--gpus", "1", *worker_args, *limit]
                 proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE,
                                         stderr=subprocess.STDOUT, text=True)
                 threading.Thread(target=pump, args=(proc, c.name), daemon=True).start()
@@ -511,6 +539,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--num-envs", type=int, default=None, help="smoke runs: envs per seed")
     parser.add_argument("--rerun", action="store_true",
                         help="discard the selected cells' stored results and run them again")
+    parser.add_argument("--max-minutes", type=float, default=None,
+                        help="stop cleanly after this many minutes: training checkpoints at its "
+                             "next chunk, no further cell or evaluation group starts; the same "
+                             "command resumes (default: no limit)")
 
 
 def run_from_args(args: argparse.Namespace) -> int:
@@ -531,6 +563,7 @@ def run_from_args(args: argparse.Namespace) -> int:
             worker += [flag, str(value)]
     states = reproduce(cells=cells, store=store, gpus=args.gpus, worker_args=worker,
                        rerun=getattr(args, "rerun", False),
+                       max_minutes=getattr(args, "max_minutes", None),
                        log=lambda line: print(line, flush=True))
     incomplete = [n for n, s in states.items() if s != "done"]
     hosts.writer_log(print)(f"{len(states) - len(incomplete)}/{len(states)} cells done"

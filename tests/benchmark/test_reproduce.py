@@ -4,6 +4,7 @@ incomplete; the committed store's states; `--list`."""
 
 import dataclasses
 import json
+import time
 
 import numpy as np
 import pytest
@@ -31,17 +32,22 @@ def fake_result(cell, suite, success=0.75):
 
 
 class Fakes:
-    def __init__(self, fail_on=None):
-        self.trained, self.evaluated, self.fail_on = 0, [], fail_on
+    def __init__(self, fail_on=None, train_s=0.0):
+        self.trained, self.evaluated, self.fail_on, self.train_s = 0, [], fail_on, train_s
+        self.limits = []
 
-    def train(self, cell, run_dir, log):
+    def train(self, cell, run_dir, log, max_wall_s=None):
+        """Completes unless given no time (`max_wall_s` 0): then it stops after its first update,
+        as the real training stops at its first checkpoint."""
         self.trained += 1
+        self.limits.append(max_wall_s)
+        time.sleep(self.train_s)
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "params.msgpack").write_bytes(b"")
         rows = [{"update": u, "env_steps": 1024 * u, "success_rate": u / 2} for u in (1, 2)]
         (run_dir / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
         params = {"w": np.zeros((cell.seeds, 3), np.float32)}
-        return params, {"complete": True, "env_steps_per_seed": cell.total_steps,
+        return params, {"complete": max_wall_s != 0.0, "env_steps_per_seed": cell.total_steps,
                         "num_seeds": cell.seeds, "env_steps_per_s": 1000.0}
 
     def evaluate(self, cell, params, suites, log):
@@ -91,6 +97,32 @@ def test_an_interrupted_evaluation_resumes_at_the_missing_suites(tmp_path):
     assert second.run(store)["state"] == "done"
     assert second.trained == 0  # the run directory's parameters are reused
     assert second.evaluated == ["letter/infinite/rsp", "letter/infinite/rec"]
+
+
+def test_a_time_limit_stops_training_and_evaluation_and_the_same_call_resumes(tmp_path):
+    store = Store(tmp_path)
+    other = dataclasses.replace(grid.cell("LetterLTL0-v0/rad"), seeds=2, total_steps=2048,
+                                episodes=3)
+    out_of_time = Fakes()  # the deadline is now: one update, checkpointed, then stop
+    reproduce.run_cell(CELL, store, log=lambda line: None, train=out_of_time.train,
+                       evaluate=out_of_time.evaluate, load=out_of_time.load, trajectories=False,
+                       deadline=time.monotonic())
+    assert out_of_time.limits == [0.0] and out_of_time.evaluated == []
+    assert store.state(CELL) == "partial" and not store.read(CELL)["training"]["complete"]
+    slow = Fakes(train_s=0.5)  # trains to the end but past the limit: no evaluation, no next cell
+    lines = []
+    states = reproduce.reproduce(cells=[CELL, other], store=store, gpus=1, log=lines.append,
+                                 max_minutes=0.2 / 60, train=slow.train, evaluate=slow.evaluate,
+                                 load=slow.load, trajectories=False)
+    assert states == {CELL.name: "partial", other.name: "missing"}
+    assert slow.trained == 1 and 0.0 < slow.limits[0] <= 0.2 and slow.evaluated == []
+    assert any("time limit reached before evaluating" in line for line in lines)
+    assert any(f"{other.name} not started" in line for line in lines)
+    rest = Fakes()
+    assert reproduce.reproduce(cells=[CELL], store=store, gpus=1, log=lambda line: None,
+                               train=rest.train, evaluate=rest.evaluate, load=rest.load,
+                               trajectories=False) == {CELL.name: "done"}
+    assert rest.trained == 0 and rest.evaluated == list(CELL.suites)  # its parameters reused
 
 
 def test_a_cell_with_fewer_seeds_is_retrained_and_all_suites_reevaluated(tmp_path):
