@@ -176,10 +176,19 @@ class SequenceTask:
 
     def current_masks(self, alphabet: jax.Array) -> tuple[jax.Array, jax.Array]:
         """The current pair as proposition masks `(reach, avoid)`, bool[P] each, given the
-        alphabet bool[A, P]."""
-        reach = jnp.any(self.reach[self.current][:, None] & alphabet, axis=0)
-        avoid = jnp.any(self.avoid[self.current][:, None] & alphabet, axis=0)
-        return reach, avoid
+        alphabet bool[A, P] (`proposition_masks`)."""
+        current = self.current
+        return (proposition_masks(self.reach[current], alphabet),
+                proposition_masks(self.avoid[current], alphabet))
+
+
+def proposition_masks(symbols: jax.Array, alphabet: jax.Array) -> jax.Array:
+    """Symbol sets bool[..., A] -> proposition masks bool[..., P], the inverse of `symbol_sets`:
+    the propositions every symbol of which is in the set. Where labels hold several propositions
+    (moving zones may overlap), the set of `reach green` also holds `{green, blue}`, and blue is
+    not to be reached."""
+    outside = ~symbols[..., :, None] & alphabet  # [..., A, P]: a symbol of p left out
+    return ~jnp.any(outside, axis=-2) & jnp.any(alphabet, axis=0)
 
 
 def symbol_sets(props: jax.Array, alphabet: jax.Array, with_empty: jax.Array | None = None) -> jax.Array:
