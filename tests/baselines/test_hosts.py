@@ -72,7 +72,7 @@ runner = train(run_dir)
 env_devices = len(runner.env_state[0].sharding.device_set)
 
 # a results-store cell trained across the processes (evaluation stubbed: no suites)
-def train_cell(cell, cell_run_dir, log):
+def train_cell(cell, cell_run_dir, log, max_wall_s=None):
     cell_runner = train(cell_run_dir)
     return hosts.host_copy(cell_runner.params), {{"complete": True, "env_steps_per_seed": 96}}
 
