@@ -239,10 +239,11 @@ class Physics:
         data = template.replace(
             qpos=state.qpos, qvel=state.qvel, qacc_warmstart=state.qacc_warmstart, ctrl=ctrl
         )
-        data, _ = jax.lax.scan(
-            lambda d, _: (mjx.step(self.substep_model, d), None), data, None, length=substeps,
-            unroll=max(1, min(self.unroll, substeps)),
-        )
+        if substeps:  # `init` runs none: a scan of length 0 would still trace and compile a step
+            data, _ = jax.lax.scan(
+                lambda d, _: (mjx.step(self.substep_model, d), None), data, None,
+                length=substeps, unroll=max(1, min(self.unroll, substeps)),
+            )
         data = mjx.forward(self.model, data)
         if self._add_sensor_acc:
             data = mjx.sensor_acc(self.model, data)
