@@ -179,6 +179,17 @@ def test_several_gpus_run_one_cell_per_gpu_side_by_side(tmp_path, monkeypatch):
         assert cmd[1:] == ["-m", "specrl_jax.benchmark.reproduce", "--cells", c.name, "--store",
                            str(tmp_path), "--gpus", "1", "--seeds", "1"]
     assert any("3/3 cells" in line and "ETA" in line for line in lines)
+    # a time limit: each worker is given the minutes left; none starts once they are spent
+    launched.clear()
+    reproduce.reproduce(cells=cells, store=Store(tmp_path), gpus=2, log=lines.append,
+                        max_minutes=5)
+    assert len(launched) == 3
+    for cmd, _ in launched:
+        assert cmd[-2] == "--max-minutes" and 4.9 < float(cmd[-1]) <= 5.0
+    launched.clear()
+    reproduce.reproduce(cells=cells, store=Store(tmp_path), gpus=2, log=lines.append,
+                        max_minutes=1e-9)
+    assert launched == [] and "not started" in lines[-1]
 
 
 def test_rerun_discards_a_done_cell_and_runs_it_end_to_end(tmp_path):
