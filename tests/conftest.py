@@ -16,8 +16,8 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
 # fusion emitters about half again (the arm's contact step 25 -> 9 s, a tiny GenZ-LTL update
 # 19 -> 11 s). The learning tests' loops run no slower.
 TEST_XLA_FLAGS = ("--xla_backend_optimization_level=0", "--xla_cpu_use_fusion_emitters=false")
-_flags = os.environ.get("XLA_FLAGS", "")
+_flags = os.environ.get("XLA_FLAGS", "")  # a flag the caller set stays as set
 os.environ["XLA_FLAGS"] = " ".join(
-    [_flags] * bool(_flags) + [f for f in TEST_XLA_FLAGS if f.split("=")[0] not in _flags])
+    filter(None, (_flags, *(f for f in TEST_XLA_FLAGS if f.split("=")[0] not in _flags))))
 
 import specrl_jax  # noqa: E402,F401  (switches JAX's cache on, in the directory chosen above)

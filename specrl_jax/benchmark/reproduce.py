@@ -35,6 +35,8 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from specrl_jax.baselines import hosts
 from specrl_jax.benchmark import grid
 from specrl_jax.benchmark.grid import Cell
@@ -172,7 +174,7 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     for group in (finite, [s for s in missing if s not in finite]):
         if not group:
             continue
-        if _seconds_left(deadline) == 0.0:
+        if _out_of_time(deadline):
             log(f"{cell.name}: time limit reached before evaluating {', '.join(group)}; rerun "
                 "to resume")
             hosts.barrier(f"{cell.name} written")
@@ -205,6 +207,14 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
 def _seconds_left(deadline: float | None) -> float | None:
     """Seconds until `deadline` (a `time.monotonic()` value), at least 0; None: no limit."""
     return None if deadline is None else max(0.0, deadline - time.monotonic())
+
+
+def _out_of_time(deadline: float | None) -> bool:
+    """Past `deadline`, as process 0's clock says: in a job of several processes every process
+    takes the same decision (else some would wait in a collective that others skipped)."""
+    if deadline is None:
+        return False
+    return bool(hosts.from_writer(np.bool_(time.monotonic() >= deadline)))
 
 
 def training_wall(summary: dict[str, Any], fallback: float) -> float:
@@ -450,7 +460,7 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
     else:
         spent, estimated = 0.0, 0.0
         for i, c in enumerate(todo):
-            if _seconds_left(deadline) == 0.0:
+            if _out_of_time(deadline):
                 log(f"time limit reached: {', '.join(x.name for x in todo[i:])} not started; "
                     "rerun the same command to resume")
                 break

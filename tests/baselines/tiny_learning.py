@@ -11,7 +11,6 @@ from specrl_jax.baselines.ppo import make_train
 from xla_options import OPTIMISED
 
 
-
 def train_rows(module: Any, method: Any, cfg: Any, updates: int) -> tuple[Any, list[dict]]:
     """The trained runner state and one summarised metrics row per update (`module.summarise`),
     compiled at XLA's default optimisation level (hundreds of updates)."""
