@@ -4,6 +4,7 @@ own training driver and evaluation unchanged."""
 
 import dataclasses
 import inspect
+import time
 from typing import Any
 
 import flax.linen as nn
@@ -15,6 +16,7 @@ import pytest
 from specrl_jax import automata, families, specs
 from specrl_jax.baselines.ppo.networks import MLP, Categorical, PolicyOutput, critic
 from specrl_jax.baselines.ppo.train import Method, PPOConfig, world_config
+from specrl_jax.baselines import runs
 from specrl_jax.baselines.spec import MethodSpec, get_method, register_method, unregister_method
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.benchmark import experiment
@@ -143,3 +145,24 @@ def test_each_baseline_declares_the_options_its_make_method_takes(name):
     spec = get_method(name)
     assert spec.options == tuple(list(inspect.signature(spec.make_method).parameters)[3:])
     assert spec.name == name and spec.title
+
+
+def test_a_wall_clock_budget_counts_the_set_up_before_training(dot_and_reach, tmp_path, monkeypatch):
+    def slow_preparation(method, key, config, log):
+        time.sleep(0.5)  # e.g. GCRL-LTL's direction primitives
+        return method
+
+    given = []
+    train_in_run_dir = runs.train_in_run_dir
+
+    def recording(*args, max_wall_s=None, **kwargs):
+        given.append(max_wall_s)
+        return train_in_run_dir(*args, max_wall_s=max_wall_s, **kwargs)
+
+    monkeypatch.setattr(runs, "train_in_run_dir", recording)
+    unregister_method("reach")
+    register_method(dataclasses.replace(REACH, prepare_training=slow_preparation))
+    overrides = {**experiment.default_overrides("cpu", 4 * 16 * 3, "dot")}
+    experiment.train("reach", "DotLTL-v0", tmp_path / "run", overrides, map_bank=None,
+                     log=lambda _: None, max_wall_s=100.0)
+    assert len(given) == 1 and given[0] <= 99.5

@@ -150,6 +150,8 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     `env_options` are `make`'s overrides of the world (e.g. `{"image_size": 64}`),
     `method_options` the method's `make_method` options (e.g. `{"sampler": "curriculum"}`).
     `restart` discards a run directory's earlier run (else it is resumed if its settings match).
+    `max_wall_s` stops training at the first checkpoint after that many seconds of this call,
+    set-up included (resumable).
     The env batch is sharded over `devices` (default: every device, of every process in a job
     of several; `num_envs` must divide by their count), parameters replicated; the result does
     not depend on the count beyond floating-point reduction order. In a job of several processes
@@ -183,10 +185,12 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         f"{config.num_envs} envs x {config.num_steps} steps); compiling takes seconds to minutes "
         "(seconds when the compilation cache holds it)")
     trainer = make_train(config, method_obj, mesh)
+    # the set-up (map bank, GCRL-LTL's primitives) spends the wall-clock budget too
+    budget = None if max_wall_s is None else max(0.0, max_wall_s - setup)
     start = time.perf_counter()
     runner = runs.train_in_run_dir(
         trainer, key_train, run_dir, chunk_updates, num_seeds, extra_config=extra_config,
-        summarise=spec.summarise, log=log, max_wall_s=max_wall_s, restart=restart, first_chunk=1,
+        summarise=spec.summarise, log=log, max_wall_s=budget, restart=restart, first_chunk=1,
     )
     wall = time.perf_counter() - start
     rows = runs.read_metrics(run_dir)
