@@ -28,15 +28,18 @@ def test_eval_end_to_end(tmp_path, capsys):
 
 def test_train_gcrl_end_to_end(tmp_path):
     """`specrl-jax train` on a method with a phase after PPO (GCRL-LTL's value function from the
-    policy's trajectories) writes both networks and evaluates every Letter suite with them."""
+    policy's trajectories) writes both networks and evaluates every Letter suite with them, at the
+    network widths given as method options."""
     from flax import serialization
 
     code = cli.main(["train", "--method", "gcrl", "--env", "LetterLTL0-v0", "--total-steps", "512",
                      "--num-envs", "8", "--num-steps", "16", "--map-bank", "64",
+                     "--method-option", "trunk=(32,)", "--method-option", "value_features=(16, 16)",
                      "--eval-episodes", "1", "--out", str(tmp_path)])
     assert code == 0
     stored = serialization.msgpack_restore((tmp_path / "params.msgpack").read_bytes())
     assert set(stored) == {"policy", "gcvf"}
+    assert stored["gcvf"]["params"]["Dense_1"]["kernel"].shape[-2:] == (16, 16)
     results = json.loads((tmp_path / "eval.json").read_text())["results"]
     assert [r["suite"] for r in results] == ["letter/finite/ind", "letter/finite/ood",
                                              "letter/infinite/rsp", "letter/infinite/rec"]

@@ -34,6 +34,8 @@ class MethodSpec:
         make_policy: `(network, alphabet, obs_kinds, deterministic=..., **policy_options)` ->
             the test-time agent (a `tasks.StatefulPolicy`).
         summarise: per-update derived scalars of a metrics row (e.g. success rate).
+        policy_options: `(method) -> dict`, `make_policy` options read off the trained method
+            object (GCRL-LTL's value network, whose widths are a `make_method` option).
         options: the keyword options `make_method` takes beyond world, params and family.
         deterministic: `(family) -> bool`, the reference's test-time action mode.
         prepare_training: `(method, key, config, log) -> method`, a phase before PPO.
@@ -61,6 +63,7 @@ class MethodSpec:
     make_policy: Callable[..., Any]
     summarise: Callable[[dict[str, float]], dict[str, float]]
     options: tuple[str, ...] = ()
+    policy_options: Callable[[Method], dict[str, Any]] | None = None
     deterministic: Callable[[str], bool] = _reference_modes
     prepare_training: Callable[..., Method] | None = None
     finish_training: Callable[..., Any] | None = None

@@ -243,6 +243,8 @@ def make_policy(method: str, world: Any, method_obj: Any, deterministic: bool | 
     spec = get_method(method)
     if deterministic is None:
         deterministic = spec.deterministic(families.name_of(world, world_family))
+    if spec.policy_options is not None:
+        options = {**spec.policy_options(method_obj), **options}
     return spec.make_policy(method_obj.network, world.alphabet, world.obs_kinds,
                             deterministic=deterministic, **options)
 

@@ -573,6 +573,7 @@ SPEC = MethodSpec(
     name="gcrl", title="GCRL-LTL", make_method=make_method, ppo_config=ppo_config,
     make_policy=make_policy, summarise=summarise,
     options=("trunk", "value_features", "primitives"),
+    policy_options=lambda method: {"value_network": method.value_network},
     prepare_training=prepare_training, finish_training=finish_training,
     param_shapes=param_shapes, coordinator_agent=coordinator_agent,
 )
