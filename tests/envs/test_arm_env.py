@@ -1,8 +1,8 @@
 """ArmEnv: IDs, spaces, stepping contract, layouts, errors, and the Gymnasium bridge.
 
 Most tests share one compiled step (mode 1 without table contacts: the contact pairs triple the
-compile time on a CPU); the Gymnasium checker compiles each registered ID once (one of them
-with table contacts, the rest without; marked slow)."""
+compile time on a CPU); the Gymnasium checker compiles one ID of each mode and control (a
+`.partial` ID has its full-view ID's spaces), the mode-1 joint ID with table contacts."""
 
 import warnings
 
@@ -340,13 +340,16 @@ def test_layout_round_trip_and_labels_after_a_step(stepping):
     assert on == {"arm_magenta", "grippers_magenta"}
 
 
-# one ID per mode: the .partial variants differ only in the feature scaling (tested above) and
-# each checker run compiles the arm's step (about a minute on a 2-core CPU)
+# one ID per mode: the .partial variants differ only in the feature scaling (test_arm_geometry)
+# and each checker run compiles the arm's step (about a minute on a 2-core CPU); the mode-1 one
+# with the original's table contacts (contacts triple the CPU compile: once in this file)
 @pytest.mark.parametrize("env_id", IDS[::3])
 def test_gymnasium_bridge_gives_the_original_dict(env_id):
     import specrl_jax.gym  # noqa: F401  (registers the IDs)
 
-    env = gymnasium.make(env_id, table_contacts=False, layouts_per_round=64)
+    contacts = env_id == "PandaLTLReach1Joints-v0.partial"
+    env = gymnasium.make(env_id, table_contacts=contacts, layouts_per_round=64)
+    assert env.unwrapped.env.config.table_contacts == contacts
     keys = list(env.unwrapped.env.original_observation_space.spaces)  # gymnasium sorts them
     colors = ("magenta", "yellow", "blue", "green")
     if "0Joints" in env_id:
@@ -368,23 +371,22 @@ def test_gymnasium_bridge_gives_the_original_dict(env_id):
     assert info["propositions"] <= set(env.unwrapped.propositions)
 
 
-#: the registered Panda IDs of the modes the checker has not seen above or in test_arm_ik.py (a
-#: `.partial` ID has the spaces of its full-view ID, its feature scaling tested above)
-OTHER_IDS = sorted(i for i in set(list_envs()) - {IDS[0], IDS[3], "PandaLTLReach0-v0"}
-                   if i.startswith("Panda") and not i.endswith(".partial"))
+#: the registered Panda IDs of the modes and controls the checker has not seen above or in
+#: test_arm_ik.py (a `.partial` ID has the spaces of its full-view ID, its feature scaling tested
+#: in test_arm_geometry)
+OTHER_IDS = sorted({i.removesuffix(".partial") for i in list_envs() if i.startswith("Panda")}
+                   - {IDS[0], IDS[3].removesuffix(".partial"), "PandaLTLReach0-v0"})
 
 
-@pytest.mark.slow  # about a minute on a 2-core CPU: each ID compiles its reset and step
+@pytest.mark.slow  # about half a minute on a 2-core CPU: the ID compiles its reset and step
 @pytest.mark.parametrize("env_id", OTHER_IDS)
 def test_gymnasium_checker_passes_on_the_other_ids(env_id):
-    """Gymnasium's checker on the rest of the registered Panda modes; one with the original's
-    table contacts (the other without: contacts triple the CPU compile)."""
+    """Gymnasium's checker on the rest of the registered Panda modes (end-effector control with
+    the link features)."""
     import specrl_jax.gym  # noqa: F401  (registers the IDs)
 
-    assert OTHER_IDS == ["PandaLTLReach1-v0", "PandaLTLReach1Joints-v0"]
-    contacts = env_id == "PandaLTLReach1Joints-v0"
-    env = gymnasium.make(env_id, table_contacts=contacts, layouts_per_round=64)
-    assert env.unwrapped.env.config.table_contacts == contacts
+    assert OTHER_IDS == ["PandaLTLReach1-v0"]
+    env = gymnasium.make(env_id, table_contacts=False, layouts_per_round=64)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         check_env(env.unwrapped)
