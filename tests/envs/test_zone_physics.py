@@ -20,7 +20,7 @@ from specrl_jax.envs.zone import contact_frame, make_zone, small_linalg
 from specrl_jax.envs.zone.c_reference import classic_rk4_step
 from specrl_jax.envs.zone.config import DEFAULT_SOLVERS, level_config
 from specrl_jax.envs.zone.models import ROBOTS, Solver, load_model, start_height
-from specrl_jax.envs.zone.physics import Physics
+from specrl_jax.envs.zone.physics import Physics, PhysicsState
 from specrl_jax.gym import GymEnv
 
 #: The original's settings: every geom collides, MuJoCo's default solver.
@@ -351,10 +351,12 @@ def test_sensor_free_substeps_and_unroll_give_the_same_steps():
     bitwise the same physics and sensors as MJX's own `step` with sensors in every substep and
     a plain loop (a box with a hinged capsule on the floor, 3 env steps)."""
     model = mujoco.MjModel.from_xml_string(_BOX)
-    # one start for both: `init` runs no substep, so the two settings cannot differ there
-    start = jax.jit(Physics(model).init)(jnp.asarray(model.qpos0, jnp.float32))
+    # one start for both, at rest at qpos0 (a step reads only qpos, qvel and the warm start)
+    zeros = lambda *shape: jnp.zeros(shape, jnp.float32)  # noqa: E731
+    start = PhysicsState(jnp.asarray(model.qpos0, jnp.float32), zeros(model.nv), zeros(model.nv),
+                         zeros(3), jnp.eye(3), zeros(model.nsensordata))
     runs = {}
-    for name, kw in (("mjx", dict(substep_sensors=True)), ("ours", dict(unroll=3))):
+    for name, kw in (("mjx", dict(substep_sensors=True)), ("ours", dict(unroll=2))):
         physics = Physics(model, **kw)
         state, step = start, jax.jit(physics.step)
         out = []
@@ -409,14 +411,14 @@ def test_small_cholesky_replaces_the_library_calls_and_matches_them():
     and 14, both triangles, vmapped); inside `Physics` with `small_cholesky` the traced step has
     no library Cholesky or triangular solve left, and the library's are back after tracing."""
     rng = np.random.default_rng(0)
+    solve = jax.jit(jax.vmap(lambda m, v: [small_linalg.cho_solve(
+        small_linalg.cho_factor(m, lower=lower), v) for lower in (False, True)]))
     for n in (11, 14):
         a = rng.normal(size=(3, n, n)).astype(np.float32)
         a = a @ np.swapaxes(a, 1, 2) + n * np.eye(n, dtype=np.float32)
         b = rng.normal(size=(3, n)).astype(np.float32)
-        for lower in (False, True):
-            ours = jax.vmap(lambda m, v: small_linalg.cho_solve(
-                small_linalg.cho_factor(m, lower=lower), v))(a, b)
-            expected = np.linalg.solve(a, b[..., None])[..., 0]
+        expected = np.linalg.solve(a, b[..., None])[..., 0]
+        for ours in solve(a, b):  # upper, then lower triangle
             np.testing.assert_allclose(ours, expected, rtol=1e-4, atol=1e-5)
     model = mujoco.MjModel.from_xml_string(_BOX)
     state = jax.eval_shape(Physics(model).init, jnp.asarray(model.qpos0, jnp.float32))
