@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from specrl_jax import automata, families, specs
+from specrl_jax.baselines import runs
 from specrl_jax.baselines.ppo.networks import MLP, Categorical, PolicyOutput, critic
 from specrl_jax.baselines.ppo.train import Method, PPOConfig, world_config
-from specrl_jax.baselines import runs
 from specrl_jax.baselines.spec import MethodSpec, get_method, register_method, unregister_method
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.benchmark import experiment
@@ -147,9 +147,12 @@ def test_each_baseline_declares_the_options_its_make_method_takes(name):
     assert spec.name == name and spec.title
 
 
-def test_a_wall_clock_budget_counts_the_set_up_before_training(dot_and_reach, tmp_path, monkeypatch):
-    def slow_preparation(method, key, config, log):
+def test_the_set_up_before_training_counts_in_the_wall_clock_budget_and_is_kept(dot_and_reach, tmp_path, monkeypatch):
+    kept = []
+
+    def slow_preparation(method, key, config, log, saved):
         time.sleep(0.5)  # e.g. GCRL-LTL's direction primitives
+        kept.append(saved)
         return method
 
     given = []
@@ -166,3 +169,4 @@ def test_a_wall_clock_budget_counts_the_set_up_before_training(dot_and_reach, tm
     experiment.train("reach", "DotLTL-v0", tmp_path / "run", overrides, map_bank=None,
                      log=lambda _: None, max_wall_s=100.0)
     assert len(given) == 1 and given[0] <= 99.5
+    assert kept == [tmp_path / "run" / experiment.PREPARED]  # the phase's result, for a resume

@@ -38,7 +38,8 @@ class MethodSpec:
             object (GCRL-LTL's value network, whose widths are a `make_method` option).
         options: the keyword options `make_method` takes beyond world, params and family.
         deterministic: `(family) -> bool`, the reference's test-time action mode.
-        prepare_training: `(method, key, config, log) -> method`, a phase before PPO.
+        prepare_training: `(method, key, config, log, saved) -> method`, a phase before PPO;
+            `saved` (a path in the run directory, or None) keeps its result for a resumed run.
         finish_training: `(method, params, key, config, log) -> params`, a phase after PPO.
         param_shapes: `(method, policy_shapes) -> shapes`, where the saved parameters hold more
             than the PPO network's.

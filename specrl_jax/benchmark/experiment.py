@@ -33,6 +33,9 @@ SUCCESS_LEVELS = (0.5, 0.8, 0.9, 0.95, 0.98)
 #: maps in a LetterWorld training's reset bank: set-up takes seconds on a CPU (a bank of 65,536
 #: takes minutes there, a second on an accelerator)
 DEFAULT_MAP_BANK = {"cpu": 4096, "gpu": 65536}
+#: a run directory's file holding the result of the method's phase before PPO (GCRL-LTL's
+#: direction primitives, LTL2Action's pretrained encoder), read when the run resumes
+PREPARED = "prepared.msgpack"
 
 
 def default_map_bank(device_kind: str) -> int:
@@ -178,7 +181,10 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         log(f"building a bank of {map_bank:,} exactly sampled maps for training resets ...")
     params, method_obj = with_method(method, world, params, map_bank, key_bank, method_options)
     if spec.prepare_training is not None:  # a phase before PPO (GCRL-LTL's direction primitives)
-        method_obj = spec.prepare_training(method_obj, key_train, config, log)
+        saved = Path(run_dir) / PREPARED if hosts.is_writer() else None
+        if restart and saved is not None:
+            saved.unlink(missing_ok=True)
+        method_obj = spec.prepare_training(method_obj, key_train, config, log, saved)
     setup = time.perf_counter() - start
     log(f"set up {env_id} in {setup:.1f}s; training {spec.title}, {num_seeds} x "
         f"{trained_steps(config):,} env steps ({config.num_updates:,} updates of "

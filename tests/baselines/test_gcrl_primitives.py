@@ -143,3 +143,23 @@ def test_train_primitives_runs_the_four_directions_through_the_run_driver():
     assert all(leaf.shape[0] == len(prim.DIRECTIONS) for leaf in leaves)
     assert all(bool(jnp.all(jnp.isfinite(leaf))) for leaf in leaves)
     assert len(lines) == 1 and lines[0].startswith("direction primitives: 3 updates")
+
+
+def test_a_run_directory_keeps_the_primitives_for_a_resumed_run(monkeypatch, tmp_path):
+    """`prepare_training` with a saved file trains the primitives once: a resumed run reads
+    them back and acts through the same parameters."""
+    import specrl_jax
+
+    world, params = specrl_jax.make("PointLTL0-v0")
+    method = gcrl.make_method(world, params, trunk=(8,), value_features=(8,))
+    trained = jax.tree.map(lambda x: x + 1.0, method.primitives)
+    calls = []
+    monkeypatch.setattr(prim, "train_primitives", lambda *args: calls.append(args) or trained)
+    cfg = gcrl.ppo_config("zone", total_timesteps=1500)
+    saved = tmp_path / "prepared.msgpack"
+    first = gcrl.prepare_training(method, jax.random.key(0), cfg, saved=saved)
+    resumed = gcrl.prepare_training(method, jax.random.key(0), cfg, saved=saved)
+    assert len(calls) == 1 and saved.exists()
+    for a, b, c in zip(*map(jax.tree.leaves, (trained, first.primitives, resumed.primitives))):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(a, c)

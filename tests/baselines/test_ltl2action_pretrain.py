@@ -71,7 +71,7 @@ def test_bootcamp_learns_and_its_encoder_starts_the_downstream_network(tmp_path)
         ltl2action.with_encoder(start.params, wider)
 
 
-def test_prepare_training_pretrains_on_the_methods_own_formulas_when_asked(monkeypatch):
+def test_prepare_training_pretrains_on_the_methods_own_formulas_when_asked(monkeypatch, tmp_path):
     world, params = make_letter_world(LetterConfig(grid_size=5, letters=PROPS, counts=1),
                                       max_steps=6)
     calls = []
@@ -93,6 +93,12 @@ def test_prepare_training_pretrains_on_the_methods_own_formulas_when_asked(monke
     assert ready.encoder["params"]["marker"].shape == (2,)
     # a method that already has its encoder is not pretrained again
     assert ltl2action.prepare_training(ready, jax.random.key(0), cfg) is ready
+    # a run directory keeps the encoder: a resumed run reads it instead of pretraining again
+    saved = tmp_path / "prepared.msgpack"
+    ltl2action.prepare_training(asked, jax.random.key(0), cfg, saved=saved)
+    resumed = ltl2action.prepare_training(asked, jax.random.key(0), cfg, saved=saved)
+    assert len(calls) == 2
+    np.testing.assert_array_equal(resumed.encoder["params"]["marker"], np.ones(2))
     with pytest.raises(ValueError, match="pretrain_steps must be >= 0"):
         ltl2action.make_method(world, params, formulas=FORMULAS, pretrain_steps=-1)
 

@@ -352,7 +352,7 @@ def test_sensor_free_substeps_and_unroll_give_the_same_steps():
     a plain loop (a box with a hinged capsule on the floor, 3 env steps)."""
     model = mujoco.MjModel.from_xml_string(_BOX)
     # one start for both, at rest at qpos0 (a step reads only qpos, qvel and the warm start)
-    zeros = lambda *shape: jnp.zeros(shape, jnp.float32)  # noqa: E731
+    zeros = lambda *shape: jnp.zeros(shape, jnp.float32)
     start = PhysicsState(jnp.asarray(model.qpos0, jnp.float32), zeros(model.nv), zeros(model.nv),
                          zeros(3), jnp.eye(3), zeros(model.nsensordata))
     runs = {}

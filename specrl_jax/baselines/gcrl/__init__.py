@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -35,6 +36,7 @@ from specrl_jax import families
 from specrl_jax.baselines.encoders import ImageCNN, check_kinds, obs_parts
 from specrl_jax.baselines.gcrl import primitives as primitives_lib
 from specrl_jax.baselines.gcrl import search
+from specrl_jax.baselines.params_io import load_params, save_params
 from specrl_jax.baselines.ppo.networks import (
     DiscreteHead,
     GaussianHead,
@@ -354,15 +356,23 @@ def value_config(method: GCRL, total_timesteps: int) -> ValueConfig:
 
 
 def prepare_training(method: GCRL, key: jax.Array, config: PPOConfig,
-                     log: Callable[[str], None] = print) -> GCRL:
+                     log: Callable[[str], None] = print, saved: Path | None = None) -> GCRL:
     """Before PPO: train the direction primitives of a robot world (one primitive step per 15
-    training steps, at most 1M each; 15M: 1M) and return the method acting through them."""
+    training steps, at most 1M each; 15M: 1M) and return the method acting through them.
+    `saved`: the primitives' file in the run directory, read when there (a resumed run),
+    else written."""
     if method.primitives is None:
         return method
-    steps = int(min(primitives_lib.MAX_STEPS, max(1, config.total_timesteps // 15)))
-    trained = primitives_lib.train_primitives(
-        method.world, method.env.params, jax.random.fold_in(key, 4),
-        primitives_lib.ppo_config(steps), log)
+    if saved is not None and saved.exists():
+        trained = load_params(saved, method.primitives, "GCRL-LTL's direction primitives")
+        log(f"direction primitives read from {saved}")
+    else:
+        steps = int(min(primitives_lib.MAX_STEPS, max(1, config.total_timesteps // 15)))
+        trained = primitives_lib.train_primitives(
+            method.world, method.env.params, jax.random.fold_in(key, 4),
+            primitives_lib.ppo_config(steps), log)
+        if saved is not None:
+            save_params(saved, trained)
     return make_method(method.world, method.env.params, method.family, method.network.trunk,
                        method.value_network.features, primitives=trained)
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -37,6 +38,7 @@ from specrl_jax.baselines.ltl2action.networks import (
     network_for,
     with_encoder,
 )
+from specrl_jax.baselines.params_io import load_params, save_params
 from specrl_jax.baselines.ppo.train import Method, PPOConfig, world_config
 from specrl_jax.baselines.pretraining import SymbolWorld, run_pretraining
 from specrl_jax.baselines.spec import MethodSpec
@@ -244,16 +246,23 @@ def pretrain_for_world(world: Any, family: str, key: jax.Array, steps: int,
 
 
 def prepare_training(method: LTL2Action, key: jax.Array, config: PPOConfig,
-                     log: Callable[[str], None] = print) -> LTL2Action:
+                     log: Callable[[str], None] = print, saved: Path | None = None
+                     ) -> LTL2Action:
     """Before PPO: with `pretrain_steps` and no encoder yet, pretrain the R-GCN on the symbol
     task over the method's training formulas (one encoder for every seed, as the original
-    transfers one) and return the method starting from it."""
+    transfers one) and return the method starting from it. `saved`: the encoder's file in the
+    run directory, read when there (a resumed run), else written."""
     if method.pretrain_steps <= 0 or method.encoder is not None:
         return method
+    if saved is not None and saved.exists():
+        log(f"pretrained encoder read from {saved}")
+        return dataclasses.replace(method, encoder=load_params(saved, what="an R-GCN encoder"))
     world = method.env.task.env
     encoder = pretrain_encoder(
         np.asarray(world.alphabet), tuple(world.propositions), method.formulas, method.stages,
         method.family, jax.random.fold_in(key, 7), method.pretrain_steps, log)
+    if saved is not None:
+        save_params(saved, encoder)
     return dataclasses.replace(method, encoder=encoder)
 
 
