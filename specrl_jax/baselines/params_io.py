@@ -60,6 +60,19 @@ def load_params_into(template: Any, stored: Any) -> Any:
         raise ValueError(f"stored tree does not fit ({type(err).__name__}: {err})") from err
 
 
+def kept_params(path: str | os.PathLike | None, compute: Callable[[], Any], template: Any = None,
+                what: str = "parameters", log: Callable[[str], None] = print) -> Any:
+    """`compute()`'s tree, kept at `path`: read from there when the file exists (a resumed run,
+    in `template`'s structure), else computed and written. With `path` None: computed only."""
+    if path is not None and Path(path).exists():
+        log(f"{what} read from {path}")
+        return load_params(path, template, what)
+    tree = compute()
+    if path is not None:
+        save_params(path, tree)
+    return tree
+
+
 def load_encoder_file(family_or_path: str | os.PathLike, shipped: Callable[[str], Path],
                       method: str, title: str, input_layer: str) -> tuple[Path, Any, int]:
     """A pretrained formula encoder: the package's shipped one named `family_or_path` ("letter",

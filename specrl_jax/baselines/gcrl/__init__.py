@@ -36,7 +36,7 @@ from specrl_jax import families
 from specrl_jax.baselines.encoders import ImageCNN, check_kinds, obs_parts
 from specrl_jax.baselines.gcrl import primitives as primitives_lib
 from specrl_jax.baselines.gcrl import search
-from specrl_jax.baselines.params_io import load_params, save_params
+from specrl_jax.baselines.params_io import kept_params
 from specrl_jax.baselines.ppo.networks import (
     DiscreteHead,
     GaussianHead,
@@ -363,16 +363,10 @@ def prepare_training(method: GCRL, key: jax.Array, config: PPOConfig,
     else written."""
     if method.primitives is None:
         return method
-    if saved is not None and saved.exists():
-        trained = load_params(saved, method.primitives, "GCRL-LTL's direction primitives")
-        log(f"direction primitives read from {saved}")
-    else:
-        steps = int(min(primitives_lib.MAX_STEPS, max(1, config.total_timesteps // 15)))
-        trained = primitives_lib.train_primitives(
-            method.world, method.env.params, jax.random.fold_in(key, 4),
-            primitives_lib.ppo_config(steps), log)
-        if saved is not None:
-            save_params(saved, trained)
+    steps = int(min(primitives_lib.MAX_STEPS, max(1, config.total_timesteps // 15)))
+    trained = kept_params(saved, lambda: primitives_lib.train_primitives(
+        method.world, method.env.params, jax.random.fold_in(key, 4),
+        primitives_lib.ppo_config(steps), log), method.primitives, "direction primitives", log)
     return make_method(method.world, method.env.params, method.family, method.network.trunk,
                        method.value_network.features, primitives=trained)
 

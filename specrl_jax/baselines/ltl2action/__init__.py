@@ -38,7 +38,7 @@ from specrl_jax.baselines.ltl2action.networks import (
     network_for,
     with_encoder,
 )
-from specrl_jax.baselines.params_io import load_params, save_params
+from specrl_jax.baselines.params_io import kept_params
 from specrl_jax.baselines.ppo.train import Method, PPOConfig, world_config
 from specrl_jax.baselines.pretraining import SymbolWorld, run_pretraining
 from specrl_jax.baselines.spec import MethodSpec
@@ -254,15 +254,11 @@ def prepare_training(method: LTL2Action, key: jax.Array, config: PPOConfig,
     run directory, read when there (a resumed run), else written."""
     if method.pretrain_steps <= 0 or method.encoder is not None:
         return method
-    if saved is not None and saved.exists():
-        log(f"pretrained encoder read from {saved}")
-        return dataclasses.replace(method, encoder=load_params(saved, what="an R-GCN encoder"))
     world = method.env.task.env
-    encoder = pretrain_encoder(
+    encoder = kept_params(saved, lambda: pretrain_encoder(
         np.asarray(world.alphabet), tuple(world.propositions), method.formulas, method.stages,
-        method.family, jax.random.fold_in(key, 7), method.pretrain_steps, log)
-    if saved is not None:
-        save_params(saved, encoder)
+        method.family, jax.random.fold_in(key, 7), method.pretrain_steps, log),
+        what="pretrained encoder", log=log)
     return dataclasses.replace(method, encoder=encoder)
 
 
