@@ -7,6 +7,9 @@ in test_zone_physics.py.
 
 from __future__ import annotations
 
+import types
+import warnings
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -54,15 +57,27 @@ def test_auto_physics_is_warp_for_car_and_ant_on_one_cuda_gpu_only(monkeypatch):
         resolve_physics("mjx", "Car")
 
 
+def test_auto_physics_without_warp_lang_on_a_gpu_warns_and_steps_with_jax(monkeypatch):
+    monkeypatch.setattr(zone_physics, "_one_cuda_gpu", lambda: True)
+    monkeypatch.setattr(zone_physics, "warp_available", lambda: False)
+    with pytest.warns(UserWarning, match=r"the Ant steps with MJX's JAX .*specrl-jax\[cuda\]"):
+        assert resolve_physics("auto", "Ant") == "jax"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert resolve_physics("auto", "Point") == "jax"  # MJX-JAX is its default anyway
+
+
 def test_one_cuda_gpu_needs_one_gpu_device_in_float32(monkeypatch):
     monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
     monkeypatch.setattr(jax, "device_count", lambda: 2)
     assert not zone_physics._one_cuda_gpu()  # several devices: MJX-JAX, which XLA can split
     monkeypatch.setattr(jax, "device_count", lambda: 1)
-    monkeypatch.setattr(zone_physics, "warp_available", lambda: True)
-    monkeypatch.setattr(zone_physics, "_import_warp", lambda: pytest.fail("x64 must not ask Warp"))
+    monkeypatch.setattr(jax, "devices", lambda: [types.SimpleNamespace(device_kind="NVIDIA H200")])
+    assert zone_physics._one_cuda_gpu()
     with jax.enable_x64(True):
         assert not zone_physics._one_cuda_gpu()  # MuJoCo Warp is float32 only
+    monkeypatch.setattr(jax, "devices", lambda: [types.SimpleNamespace(device_kind="AMD MI300X")])
+    assert not zone_physics._one_cuda_gpu()
     monkeypatch.setattr(jax, "default_backend", lambda: "cpu")
     assert not zone_physics._one_cuda_gpu()
 

@@ -18,6 +18,7 @@ while a C-frame trace runs would see C's frame.
 from __future__ import annotations
 
 import contextlib
+import warnings
 
 import jax
 import jax.numpy as jnp
@@ -78,20 +79,21 @@ def _import_warp():
 
 
 def _one_cuda_gpu() -> bool:
-    """Whether JAX computes on exactly one device, a GPU that Warp can run on (CUDA), in float32
-    (MuJoCo Warp is float32 only; with `jax_enable_x64` MJX-JAX computes in float64)."""
-    if jax.default_backend() != "gpu" or jax.device_count() != 1 or not warp_available():
+    """Whether JAX computes on exactly one device, an NVIDIA GPU, in float32 (MuJoCo Warp is
+    float32 only; with `jax_enable_x64` MJX-JAX computes in float64)."""
+    if jax.default_backend() != "gpu" or jax.device_count() != 1:
         return False
     if jax.dtypes.canonicalize_dtype(jnp.float64) == jnp.float64:
         return False
-    return bool(_import_warp().is_cuda_available())
+    return "nvidia" in jax.devices()[0].device_kind.lower()
 
 
 def resolve_physics(physics: str, robot: str) -> str:
     """The backend that `ZoneConfig.physics` means on this machine.
 
     "auto" is "warp" for the robots in `WARP_ROBOTS` when JAX runs on one CUDA GPU in float32
-    and warp-lang is installed, else "jax". With several devices "auto" is "jax": MuJoCo Warp
+    and warp-lang is installed, else "jax" (with a warning when only warp-lang is missing: the
+    robot then steps several times slower). With several devices "auto" is "jax": MuJoCo Warp
     runs as a foreign call that XLA cannot split across devices; with `jax_enable_x64` too, as
     MuJoCo Warp is float32 only. "jax" and "warp" are kept as given.
     """
@@ -99,7 +101,14 @@ def resolve_physics(physics: str, robot: str) -> str:
         raise ValueError(f"unknown physics backend {physics!r}; accepted: {PHYSICS}")
     if physics != "auto":
         return physics
-    return "warp" if robot in WARP_ROBOTS and _one_cuda_gpu() else "jax"
+    if robot not in WARP_ROBOTS or not _one_cuda_gpu():
+        return "jax"
+    if not warp_available():
+        warnings.warn(f"the {robot} steps with MJX's JAX implementation on this GPU, several times "
+                      "slower than with MuJoCo Warp, which needs warp-lang: "
+                      "pip install 'specrl-jax[cuda]' (or warp-lang>=1.18)", stacklevel=2)
+        return "jax"
+    return "warp"
 
 
 def _max_contacts(model: mujoco.MjModel) -> int:
