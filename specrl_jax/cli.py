@@ -308,8 +308,9 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
     arg("--num-steps", type=positive_int, default=None, help="rollout steps per env and update"),
     arg("--restart", action="store_true", help="discard a run already in --out instead of resuming it"),
     arg("--map-bank", type=nonnegative_int, default=None,
-        help="LetterWorld: maps in the bank training resets draw from (default 65,536 on an "
-             "accelerator, 4,096 on a CPU: set-up in seconds; 0: exact resets)"),
+        help="LetterWorld and the arm: exactly sampled layouts in the bank training resets "
+             "draw from (default 65,536 on an accelerator; on a CPU LetterWorld 4,096, the arm "
+             "512: set-up in seconds, the arm's in a minute; cached on disk; 0: exact resets)"),
     arg("--out", default=None, help="run directory (default runs/<method>); resumes if present"),
     arg("--eval-episodes", type=nonnegative_int, default=0, help="then evaluate on the world's paper suites"),
     arg("--env-option", type=env_option, action="append", default=[], metavar="KEY=VALUE",
@@ -339,7 +340,8 @@ def train_command(args: argparse.Namespace) -> int:
     out = Path(args.out or f"runs/{args.method}")
     env_options = dict(args.env_option)
     method_options = dict(args.method_option)
-    map_bank = experiment.default_map_bank(platform) if args.map_bank is None else args.map_bank
+    map_bank = (experiment.default_map_bank(platform, world_family) if args.map_bank is None
+                else args.map_bank)
     params, summary = experiment.train(args.method, args.env, out, overrides, args.seeds, args.seed,
                                        map_bank=map_bank or None, restart=args.restart,
                                        env_options=env_options, method_options=method_options)
@@ -400,9 +402,9 @@ def run_command(args: argparse.Namespace) -> int:
                    if steps != total else "")
         print(f"training GenZ-LTL on LetterLTL0-v0: {seeds} x {steps:,} steps{rounded} into {out}",
               flush=True)
+        map_bank = experiment.default_map_bank("gpu" if gpu else "cpu", "letter")
         params, summary = experiment.train("genz", "LetterLTL0-v0", out, overrides, seeds,
-                                           map_bank=experiment.default_map_bank("gpu" if gpu else "cpu"),
-                                           restart=args.restart)
+                                           map_bank=map_bank, restart=args.restart)
         print(f"trained GenZ-LTL: {seeds} x {summary['env_steps_per_seed']:,} steps at "
               f"{summary['env_steps_per_s']:,.0f} env-steps/s")
     suites = ("letter/finite/ind", "letter/finite/ood")

@@ -1,7 +1,8 @@
 """The world families of the benchmark as data: one record per family says everything the
 benchmark knows about it (which IDs, horizon, the paper's suites, the reference PPO shape and
-discount, the rollout shape per device kind, the task sources of each method, the shipped formula
-encoders). Worlds carry their family's name as `env.family`; nothing parses env IDs.
+discount, the rollout shape and training reset bank per device kind, the task sources of each
+method, the shipped formula encoders). Worlds carry their family's name as `env.family`; nothing
+parses env IDs.
 
 This module is pure data and imports nothing from the package, so that every layer may read it.
 Adding a family means one record here (or `register_family` at run time) and its env module.
@@ -54,8 +55,8 @@ class WorldFamily:
             LTL2Action) this family uses; None when there is none.
         trainable: whether single-agent training applies (multi-agent worlds are evaluated with
             the coordinator over single-agent policies).
-        map_bank: whether training resets draw from a bank of exactly sampled layouts
-            (`env.with_map_bank`) by default.
+        map_bank: per device kind ("cpu", "gpu"), the exactly sampled layouts in the bank that
+            training resets draw from (`env.with_map_bank`); empty: exact resets.
         reference_env: the family's standard world (its alphabet and propositions are the
             family's: pretrained formula encoders are made on it).
     """
@@ -70,13 +71,14 @@ class WorldFamily:
     task_sources: Mapping[str, str] = dataclasses.field(default_factory=dict)
     formula_encoder: str | None = None
     trainable: bool = True
-    map_bank: bool = False
+    map_bank: Mapping[str, int] = dataclasses.field(default_factory=dict)
     reference_env: str = ""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "ppo", _frozen(self.ppo))
         object.__setattr__(self, "rollout", _frozen({k: _frozen(v) for k, v in self.rollout.items()}))
         object.__setattr__(self, "task_sources", _frozen(self.task_sources))
+        object.__setattr__(self, "map_bank", _frozen(self.map_bank))
 
     @property
     def infinite_horizon(self) -> int:
@@ -90,6 +92,10 @@ class WorldFamily:
         """`num_envs`, `num_steps`, `num_minibatches` per seed on "cpu" or "gpu" (any accelerator)."""
         kind = "cpu" if device_kind == "cpu" else "gpu"
         return dict(self.rollout[kind])
+
+    def map_bank_size(self, device_kind: str) -> int:
+        """Layouts in the training reset bank on "cpu" or any accelerator (0: exact resets)."""
+        return int(self.map_bank.get("cpu" if device_kind == "cpu" else "gpu", 0))
 
 
 _ZONE_PPO = {"num_envs": 16, "num_steps": 4096, "num_minibatches": 32, "gamma": 0.998,
@@ -111,7 +117,8 @@ LETTER = WorldFamily(
     task_sources={"genz": "genz/letter", "deepltl": "deepltl/letter",
                   "ltl2action": "deepltl/letter", "rad": "deepltl/letter"},
     formula_encoder="letter",
-    map_bank=True,
+    # 4,096 exact maps take seconds on a CPU (65,536 minutes there, a second on an accelerator)
+    map_bank={"cpu": 4096, "gpu": 65536},
     reference_env="LetterLTL0-v0",
 )
 
@@ -146,6 +153,10 @@ ARM = WorldFamily(
     task_sources={"genz": "genz/zone", "deepltl": "deepltl/zone",
                   "ltl2action": "Until_1_2_1_1", "rad": "rad"},
     formula_encoder="zone",
+    # an exact layout (rejection sampling) costs ~100 ms per arm on a CPU, ~120x a world step:
+    # computed for every arm at every step, it bounded training (docs/fidelity.md); 512 take
+    # about a minute on a CPU
+    map_bank={"cpu": 512, "gpu": 65536},
     reference_env="PandaLTLReach0Joints-v0",
 )
 

@@ -30,17 +30,15 @@ from specrl_jax.envs import bank_cache
 from specrl_jax.envs.registry import make
 
 SUCCESS_LEVELS = (0.5, 0.8, 0.9, 0.95, 0.98)
-#: maps in a LetterWorld training's reset bank: set-up takes seconds on a CPU (a bank of 65,536
-#: takes minutes there, a second on an accelerator)
-DEFAULT_MAP_BANK = {"cpu": 4096, "gpu": 65536}
 #: a run directory's file holding the result of the method's phase before PPO (GCRL-LTL's
 #: direction primitives, LTL2Action's pretrained encoder), read when the run resumes
 PREPARED = "prepared.msgpack"
 
 
-def default_map_bank(device_kind: str) -> int:
-    """Maps in the training reset bank on "cpu" or any accelerator platform name."""
-    return DEFAULT_MAP_BANK["cpu" if device_kind == "cpu" else "gpu"]
+def default_map_bank(device_kind: str, world_family: str) -> int:
+    """Layouts in a family's training reset bank on "cpu" or any accelerator platform name
+    (`families.WorldFamily.map_bank`; 0: exact resets)."""
+    return families.get(world_family).map_bank_size(device_kind)
 
 
 def family(env_id: str) -> str:
@@ -119,7 +117,8 @@ def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int
           env_options: dict[str, Any] | None = None, method_options: dict[str, Any] | None = None):
     """(world, train params, method object, PPOConfig) for `method` on `env_id` (built with
     `make(env_id, **env_options)`, the method with `make_method(..., **method_options)`);
-    `map_bank` (LetterWorld) draws training resets from a bank of that many exactly sampled maps."""
+    `map_bank` (families with a bank: LetterWorld, the arm) draws training resets from a bank of
+    that many exactly sampled layouts."""
     config = check_settings(method, env_id, ppo_overrides, method_options)
     world, params = make(env_id, **(env_options or {}))
     params, method_obj = with_method(method, world, params, map_bank, key, method_options)
@@ -178,7 +177,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     runs.check_run_dir(run_dir, runs.run_config(config, num_seeds, extra_config), restart)
     warn_slow_camera(world, mesh.devices.flat[0].platform)
     if map_bank and families.of(world).map_bank:
-        log(f"building a bank of {map_bank:,} exactly sampled maps for training resets ...")
+        log(f"building a bank of {map_bank:,} exactly sampled layouts for training resets ...")
     params, method_obj = with_method(method, world, params, map_bank, key_bank, method_options)
     if spec.prepare_training is not None:  # a phase before PPO (GCRL-LTL's direction primitives)
         saved = Path(run_dir) / PREPARED if hosts.is_writer() else None

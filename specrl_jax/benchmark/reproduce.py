@@ -53,19 +53,20 @@ def default_train(cell: Cell, run_dir: Path, log: Log, max_wall_s: float | None 
                   ) -> tuple[Any, dict[str, Any]]:
     """Train `cell`'s seeds side by side with the family's shape on this device
     (`experiment.default_overrides`, with the method's accelerator settings) and the cell's PPO
-    overrides; LetterWorld resets from a bank of `experiment.default_map_bank` exactly sampled
-    maps (65,536 on an accelerator, 4,096 on a CPU). `max_wall_s` stops training at the first
+    overrides; LetterWorld and the arm reset from a bank of `experiment.default_map_bank` exactly
+    sampled layouts (the family's `map_bank`). `max_wall_s` stops training at the first
     checkpoint after that many seconds (resumable)."""
     import jax
 
     from specrl_jax.benchmark import experiment
 
     platform = jax.devices()[0].platform
-    overrides = experiment.default_overrides(platform, cell.total_steps,
-                                             experiment.family(cell.env_id), cell.method)
+    world_family = experiment.family(cell.env_id)
+    overrides = experiment.default_overrides(platform, cell.total_steps, world_family, cell.method)
     overrides.update(dict(cell.ppo))
+    map_bank = experiment.default_map_bank(platform, world_family)
     return experiment.train(cell.method, cell.env_id, run_dir, overrides, cell.seeds, log=log,
-                            max_wall_s=max_wall_s, map_bank=experiment.default_map_bank(platform),
+                            max_wall_s=max_wall_s, map_bank=map_bank,
                             env_options=dict(cell.env_options) or None,
                             method_options=cell.options() or None)
 

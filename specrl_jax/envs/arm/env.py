@@ -30,12 +30,12 @@ class ArmParams:
 
     Attributes:
         max_steps: horizon, sets `truncated`.
-        layout_bank: None (default: an exact layout at every reset) or float32[M, Z, 3] region
-            centres from `ArmEnv.with_map_bank`, the opt-in fast reset.
+        map_bank: None (default: an exact layout at every reset) or float32[M, Z, 3] region
+            centres from `ArmEnv.with_map_bank`, the fast reset (training's default).
     """
 
     max_steps: int = 200
-    layout_bank: jax.Array | None = None
+    map_bank: jax.Array | None = None
 
 
 @struct.dataclass
@@ -124,14 +124,14 @@ class ArmEnv(Env):
 
     # ---- reset --------------------------------------------------------------------------
     def reset_env(self, key: jax.Array, params: ArmParams) -> tuple[Obs, ArmState]:
-        if params.layout_bank is None:
+        if params.map_bank is None:
             centres, ok = layout_lib.sample_centres(key, self.config)
             rounds = self.config.max_rounds
             checkify.debug_check(
                 ok, f"the arm's layout sampler found no valid layout in max_rounds={rounds} rounds"
             )
         else:
-            bank = jnp.asarray(params.layout_bank)
+            bank = jnp.asarray(params.map_bank)
             centres, ok = bank[jax.random.randint(key, (), 0, bank.shape[0])], jnp.array(True)
         layout = {"region_pos": centres, "joint_qpos": jnp.asarray(arm_model.NEUTRAL_QPOS)}
         obs, state = self.reset_to(key, layout, params)
@@ -148,7 +148,7 @@ class ArmEnv(Env):
         bank, ok = sample(key, self.config, num_maps)
         if not bool(jnp.all(ok)):
             raise ValueError(f"{int((~ok).sum())} of {num_maps} layouts could not be placed")
-        return params.replace(layout_bank=bank.astype(jnp.float32))
+        return params.replace(map_bank=bank.astype(jnp.float32))
 
     def reset_to(
         self, key: jax.Array, layout: dict[str, Any], params: ArmParams
