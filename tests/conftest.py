@@ -20,4 +20,9 @@ _flags = os.environ.get("XLA_FLAGS", "")  # a flag the caller set stays as set
 os.environ["XLA_FLAGS"] = " ".join(
     filter(None, (_flags, *(f for f in TEST_XLA_FLAGS if f.split("=")[0] not in _flags))))
 
+# one OpenBLAS thread per process: the suite's numpy and SciPy calls are on tiny matrices, where
+# OpenBLAS's threads cost more than they give (the arm's reference motor solve, SciPy's L-BFGS-B,
+# runs 5x faster), and the test processes already fill the cores
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import specrl_jax  # noqa: E402,F401  (switches JAX's cache on, in the directory chosen above)

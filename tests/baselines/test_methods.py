@@ -21,8 +21,8 @@ def _tiny_world():
     return world, world.with_map_bank(jax.random.key(0), params, num_maps=64)
 
 
-def _learning(module, method, cfg, updates):
-    return early_late(train_rows(module, method, cfg, updates)[1])
+def _learning(module, method, cfg, updates, optimised=True):
+    return early_late(train_rows(module, method, cfg, updates, optimised)[1])
 
 
 def test_genz_learns_to_reach_on_a_tiny_letter_world_through_the_task_loop():
@@ -30,7 +30,8 @@ def test_genz_learns_to_reach_on_a_tiny_letter_world_through_the_task_loop():
     method = genz.make_method(world, params)  # subgoals: reach one letter, avoid the other or none
     cfg = genz.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * 40, update_epochs=4,
                           num_minibatches=2)
-    first, last = _learning(genz, method, cfg, 40)
+    # at the suite's level 0: the training compiles several times faster and runs no slower
+    first, last = _learning(genz, method, cfg, 40, optimised=False)
     assert first < 0.4 and last > 0.6, (first, last)
 
 

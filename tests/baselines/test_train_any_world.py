@@ -1,8 +1,6 @@
 """Training goes through the task loop on every single-agent world: building every registered ID,
 one update on each robot, training and evaluation agreeing on an episode, clear errors."""
 
-import time
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -97,11 +95,12 @@ def test_training_and_evaluation_agree_on_an_episode():
     actions = jax.random.randint(jax.random.key(5), (75,), 0, 4)
     policy = as_stateful(lambda p, obs, state, key: actions[state.time])
     train_env = TaskTrainEnv(task, params, signals=lambda info: (0.0, 0.0, jnp.zeros((), bool)))
+    episode = jax.jit(lambda k, i: run_episode(policy, task, params, 75, None, k, i))
+    step = jax.jit(train_env.step)
     for index in range(3):
         key = jax.random.key(index)
-        final, _, _, _ = jax.jit(lambda k, i: run_episode(policy, task, params, 75, None, k, i))(key, index)
+        final, _, _, _ = episode(key, index)
         _, state = task.reset(jax.random.split(key, 3)[0], params, index)
-        step = jax.jit(train_env.step)
         for t in range(75):
             _, state, result = step(jax.random.key(100 + t), state, actions[t], None)
             if bool(result.terminated | result.truncated):

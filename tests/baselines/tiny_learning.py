@@ -11,11 +11,13 @@ from specrl_jax.baselines.ppo import make_train
 from xla_options import OPTIMISED
 
 
-def train_rows(module: Any, method: Any, cfg: Any, updates: int) -> tuple[Any, list[dict]]:
+def train_rows(module: Any, method: Any, cfg: Any, updates: int, optimised: bool = True
+               ) -> tuple[Any, list[dict]]:
     """The trained runner state and one summarised metrics row per update (`module.summarise`),
-    compiled at XLA's default optimisation level (hundreds of updates)."""
-    runner, metrics = jax.jit(make_train(cfg, method), compiler_options=OPTIMISED)(
-        jax.random.key(1))
+    compiled at XLA's default optimisation level (hundreds of updates), or with `optimised`
+    False at the suite's level 0 (where compiling costs more time than running gains)."""
+    runner, metrics = jax.jit(make_train(cfg, method),
+                              compiler_options=OPTIMISED if optimised else None)(jax.random.key(1))
     rows = [module.summarise({k: float(v[i]) for k, v in metrics.items()}) for i in range(updates)]
     return runner, rows
 

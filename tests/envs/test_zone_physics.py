@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -346,20 +347,30 @@ _BOX = """<mujoco><option timestep="0.004"/><worldbody><geom type="plane" size="
 <sensor><accelerometer site="s"/><gyro site="s"/><jointpos joint="hinge"/></sensor></mujoco>"""
 
 
+@functools.cache
+def _box_step(**options) -> tuple[Physics, Callable]:
+    """`Physics(box, **options)` and its jitted step, shared by the tests below (one trace and
+    compile each)."""
+    physics = Physics(mujoco.MjModel.from_xml_string(_BOX), **options)
+    return physics, jax.jit(physics.step)
+
+
+def _box_start(model: mujoco.MjModel) -> PhysicsState:
+    """The box at rest at qpos0 (a step reads only qpos, qvel and the warm start)."""
+    zeros = lambda *shape: jnp.zeros(shape, jnp.float32)
+    return PhysicsState(jnp.asarray(model.qpos0, jnp.float32), zeros(model.nv), zeros(model.nv),
+                        zeros(3), jnp.eye(3), zeros(model.nsensordata))
+
+
 def test_sensor_free_substeps_and_unroll_give_the_same_steps():
     """Skipping the sensors in the substeps (the default) and unrolling the substep loop give
     bitwise the same physics and sensors as MJX's own `step` with sensors in every substep and
     a plain loop (a box with a hinged capsule on the floor, 3 env steps)."""
     model = mujoco.MjModel.from_xml_string(_BOX)
-    # one start for both, at rest at qpos0 (a step reads only qpos, qvel and the warm start)
-    zeros = lambda *shape: jnp.zeros(shape, jnp.float32)
-    start = PhysicsState(jnp.asarray(model.qpos0, jnp.float32), zeros(model.nv), zeros(model.nv),
-                         zeros(3), jnp.eye(3), zeros(model.nsensordata))
     runs = {}
     for name, kw in (("mjx", dict(substep_sensors=True)), ("ours", dict(unroll=2))):
-        physics = Physics(model, **kw)
-        state, step = start, jax.jit(physics.step)
-        out = []
+        physics, step = _box_step(**kw)
+        state, out = _box_start(model), []
         for ctrl in (1.0, -1.0, 0.5):
             state = step(state, jnp.array([ctrl]))
             out.append(np.concatenate([np.asarray(state.qpos), np.asarray(state.sensordata)]))
@@ -420,10 +431,9 @@ def test_small_cholesky_replaces_the_library_calls_and_matches_them():
         expected = np.linalg.solve(a, b[..., None])[..., 0]
         for ours in solve(a, b):  # upper, then lower triangle
             np.testing.assert_allclose(ours, expected, rtol=1e-4, atol=1e-5)
-    model = mujoco.MjModel.from_xml_string(_BOX)
-    state = jax.eval_shape(Physics(model).init, jnp.asarray(model.qpos0, jnp.float32))
-    for small in (False, True):
-        step = Physics(model, small_cholesky=small).step
-        jaxpr = str(jax.make_jaxpr(step)(state, jax.ShapeDtypeStruct((1,), jnp.float32)))
+    start = _box_start(mujoco.MjModel.from_xml_string(_BOX))
+    for small in (False, True):  # the first is the step traced by the test above
+        _, step = _box_step(unroll=2, **({"small_cholesky": True} if small else {}))
+        jaxpr = str(step.trace(start, jnp.array([0.0])).jaxpr)
         assert ("cholesky" in jaxpr and "triangular_solve" in jaxpr) != small
     assert jax.scipy.linalg.cho_factor is not small_linalg.cho_factor
