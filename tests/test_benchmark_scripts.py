@@ -3,8 +3,9 @@
 Each script runs in a fresh process with tiny arguments and must exit 0 and write its result rows
 (`benchmarks/harness.py`: one JSON object per line with the figure, its value, device, batch,
 versions, date and command). Scripts that need a package CI lacks (PyBullet) or a CUDA GPU are
-skipped for that reason only. A new script must be added to `SCRIPTS` (the listing test fails
-otherwise), so nothing under benchmarks/ rots unseen.
+skipped for that reason only. A new script must be added to `SCRIPTS`, or to `OWN_TEST` when a
+test file of its own runs it (the listing test fails otherwise), so nothing under benchmarks/
+rots unseen.
 """
 
 from __future__ import annotations
@@ -40,13 +41,16 @@ ROW_FLAG = {"lab/vision_fidelity.py": "--rows"}
 OWN_JSON = {"lab/arm_vs_pybullet.py"}
 #: the harness module itself
 NOT_SCRIPTS = {"harness.py"}
+#: scripts smoke-run by a test file of their own
+OWN_TEST = {"train_profile.py": "tests/test_train_profile.py"}
 ROW_KEYS = {"figure", "value", "device", "batch", "versions", "date", "command"}
 
 
 def test_every_script_has_a_smoke_run():
     found = {str(p.relative_to(BENCHMARKS)) for p in BENCHMARKS.glob("*.py")}
     found |= {str(p.relative_to(BENCHMARKS)) for p in BENCHMARKS.glob("lab/*.py")}
-    assert found - NOT_SCRIPTS == set(SCRIPTS)
+    assert all((ROOT / test).is_file() for test in OWN_TEST.values())
+    assert found - NOT_SCRIPTS - set(OWN_TEST) == set(SCRIPTS)
 
 
 def _needs(script: str) -> None:

@@ -4,7 +4,8 @@ all inside one jitted `lax.scan`.
 A method (see `Method`) supplies its training env, its network and its task distribution; the
 trainer never changes per method. `make_train(config, method)` returns a `Trainer`, callable as
 `train(key) -> (runner_state, metrics)` for a whole run (jit/vmap-able over seeds); `init` and
-`updates` expose the same computation in chunks for progress display and checkpoints.
+`updates` expose the same computation in chunks for progress display and checkpoints, `collect`
+and `learn` an update's two halves (rollout, PPO step) for profiling.
 """
 
 from __future__ import annotations
@@ -174,18 +175,23 @@ class Trainer:
         opt_state = self.optimizer.init(params)
         return RunnerState(params, opt_state, env_state, obs, task_params, key_run, jnp.zeros((), jnp.int32))
 
-    def update(self, runner: RunnerState) -> tuple[RunnerState, dict[str, jax.Array]]:
+    def collect(self, runner: RunnerState, key: jax.Array) -> tuple[Any, Any, rollout.Transition]:
+        """An update's rollout, `num_steps` steps of the policy in `runner`'s B envs:
+        `(env_state, obs, transitions [T, B, ...])` (`rollout.collect`)."""
         cfg = self.config
-        key, key_collect, key_epochs = jax.random.split(runner.key, 3)
-
-        # COLLECT TRAJECTORIES
-        env_state, obs, traj = rollout.collect(
-            key_collect, runner.params, self.apply, self.method.env, runner.env_state, runner.obs,
+        return rollout.collect(
+            key, runner.params, self.apply, self.method.env, runner.env_state, runner.obs,
             runner.task_params, cfg.num_steps, cfg.gamma, cfg.timeouts_terminal, self.constrain,
         )
 
+    def learn(self, params: Any, opt_state: Any, traj: rollout.Transition, last_obs: Any,
+              key: jax.Array) -> tuple[Any, Any, dict[str, jax.Array], jax.Array]:
+        """An update's PPO step on a collected rollout (`traj [T, B, ...]`, then `last_obs`):
+        advantages, then epochs of minibatch gradient steps (stopped early past `target_kl`).
+        Returns `(params, opt_state, the last epoch's loss metrics, epochs run: int32)`."""
+        cfg = self.config
         # ADVANTAGES (reward GAE; reachability cost for RCO)
-        last = self.apply(runner.params, obs)
+        last = self.apply(params, last_obs)
         advantage, target = losses.compute_gae(
             traj.reward, traj.value, traj.done, last.value, cfg.gamma, cfg.gae_lambda
         )
@@ -202,8 +208,15 @@ class Trainer:
         batch = jax.tree.map(lambda x: x.reshape(cfg.batch_size, *x.shape[2:]), batch)
 
         # EPOCHS OF MINIBATCH UPDATES
-        params, opt_state, loss_metrics, epochs = self._epochs(runner.params, runner.opt_state, batch, key_epochs)
+        return self._epochs(params, opt_state, batch, key)
 
+    def update(self, runner: RunnerState) -> tuple[RunnerState, dict[str, jax.Array]]:
+        """One update: `collect`, then `learn`, then the task distribution's next state."""
+        key, key_collect, key_epochs = jax.random.split(runner.key, 3)
+        env_state, obs, traj = self.collect(runner, key_collect)
+        params, opt_state, loss_metrics, epochs = self.learn(
+            runner.params, runner.opt_state, traj, obs, key_epochs
+        )
         task_params = self.method.update_task_params(runner.task_params, traj.stats)
         stats = {k: jnp.sum(v) for k, v in traj.stats.items() if not k.startswith("_")}
         runner = RunnerState(params, opt_state, env_state, obs, task_params, key, runner.update + 1)

@@ -1,0 +1,60 @@
+"""benchmarks/train_profile.py runs at a tiny size on the CPU and its row adds up.
+
+One fresh process profiles GenZ-LTL on LetterLTL0-v0 (1 seed, 8 envs x 16 steps, 2 minibatches,
+1 epoch, so that every update runs the same epochs, a reset bank of 16 layouts): the row has the
+harness's keys and the profile's, every time and rate is positive and finite, and the rollout
+plus the update (timed apart) come close to the training's own full step.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "benchmarks" / "train_profile.py"
+ARGS = ["--env", "LetterLTL0-v0", "--method", "genz", "--seeds", "1", "--num-envs", "8",
+        "--num-steps", "16", "--minibatches", "2", "--epochs", "1", "--updates", "1",
+        "--repeats", "2", "--map-bank", "16"]
+ROW_KEYS = {"figure", "value", "device", "batch", "versions", "date", "command"}
+PARTS = ("rollout", "update", "full")
+
+
+def test_train_profile_runs_tiny_and_its_parts_add_up(tmp_path):
+    out = tmp_path / "rows.json"
+    env = dict(os.environ, JAX_PLATFORMS=os.environ.get("JAX_PLATFORMS", "cpu"))
+    done = subprocess.run([sys.executable, str(SCRIPT), *ARGS, "--out", str(out)], check=False,
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, f"failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
+    assert "rollout share" in done.stdout  # the human table
+    (row,) = [json.loads(line) for line in out.read_text().splitlines()]
+    assert ROW_KEYS <= set(row)
+    assert (row["env"], row["method"], row["seeds"], row["batch"]) == ("LetterLTL0-v0", "genz", 1, 8)
+    assert (row["num_envs"], row["num_steps"], row["num_minibatches"]) == (8, 16, 2)
+    assert row["minibatch_size"] == 64 and row["map_bank"] == 16
+    for part in PARTS:
+        for key in (f"{part}_s", f"{part}_steps_per_s"):
+            assert math.isfinite(row[key]) and row[key] > 0, (key, row[key])
+        assert row[f"{part}_steps_per_s"] * row[f"{part}_s"] == pytest.approx(8 * 16)
+        assert row["compile_s"][part] > 0
+        program = row["programs"][part]
+        assert program["hlo_instructions"] > program["fusions"] > 0
+        assert program["host_transfers"] == 0  # the trainer logs nothing by default
+    assert row["epochs_per_seed"] == [1] and row["full_epochs_per_seed"] == [[1]]
+    assert row["grad_steps_per_update"] == 2 and row["grad_steps_per_s"] > 0
+    # one epoch, so the parts' epochs are the full step's: their sum is close to it (a loaded
+    # 2-core CPU times loosely)
+    assert row["split_s"] == pytest.approx(row["rollout_s"] + row["update_s"])
+    assert 0.5 < row["full_s"] / row["split_s"] < 2.0, (row["full_s"], row["split_s"])
+    assert 0 < row["rollout_share"] < 1
+    # the KL stop's loop has no known trip count: a GPU syncs once per epoch and once to stop
+    assert row["programs"]["update"]["while_loops_unknown_trip_count"] >= 1
+    assert any("ppo/train.py" in where for where in row["programs"]["update"]["while_loop_sources"])
+    assert row["host_syncs_per_update_min"] >= 2
+    assert row["host_per_chunk"]["checkpoint_bytes"] > 0
