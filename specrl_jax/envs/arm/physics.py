@@ -19,12 +19,15 @@ that reach (`Physics` says how).
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
 
+from specrl_jax.envs import compiled
 from specrl_jax.envs.arm.collision import Collision, ContactReach
 from specrl_jax.envs.arm.kinematics import ChainKinematics
 from specrl_jax.envs.compaction import where_needed
@@ -144,6 +147,7 @@ class Physics:
                  solve_capacities: tuple[float, ...] | None = SOLVE_CAPACITIES,
                  solve_pairs: int | None = SOLVE_PAIRS):
         self.mj_model = model
+        self._digest = compiled.model_digest(model)
         self.model = mjx.put_model(model, impl="jax")
         self.substeps = substeps
         self.force_limit = np.asarray(force_limit, np.float32)
@@ -164,6 +168,7 @@ class Physics:
             raise ValueError("solve_pairs needs primitive-mesh contact pairs with one contact "
                              "count each; pass solve_pairs=None")
         self.solve_pairs = solve_pairs
+        self.solve_capacities = solve_capacities
         every_pair = self._solve_every_pair
         if solve_pairs is None:
             self._solve = every_pair if solve_capacities is None else where_needed(
@@ -265,8 +270,19 @@ class Physics:
         return mjx.euler(self.model, data.replace(qacc=qacc, qfrc_constraint=qfrc))
 
     def step(self, state: PhysicsState, target: jax.Array) -> PhysicsState:
-        """`substeps` physics steps toward `target` (float[7], rad), held through the step."""
+        """`substeps` physics steps toward `target` (float[7], rad), held through the step.
 
+        Traced once per model and options in a process (`compiled.ByKey`): other envs of the
+        same arm model reuse it.
+        """
+        return _shared_step(compiled.ByKey(self._trace_key(), self), state, target)
+
+    def _trace_key(self) -> tuple:
+        """All that a trace of `step` reads besides its arguments."""
+        return (self._digest, self.force_limit.tobytes(), self.substeps, self.solve_capacities,
+                self.solve_pairs)
+
+    def _step_traced(self, state: PhysicsState, target: jax.Array) -> PhysicsState:
         def substep(_, carry: PhysicsState) -> PhysicsState:
             # a substep depends on these four only: the loop carries them, not all of mjx.Data
             data = self._template.replace(
@@ -278,6 +294,13 @@ class Physics:
         # MJX's own Cholesky factorisations (mass matrix, Newton Hessian), written out too
         with small_linalg.small_cholesky():
             return jax.lax.fori_loop(0, self.substeps, substep, state)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _shared_step(
+    physics: compiled.ByKey[Physics], state: PhysicsState, target: jax.Array
+) -> PhysicsState:
+    return physics.value._step_traced(state, target)
 
 
 __all__ = ["MOTOR_RATE", "SUBSTEPS", "Physics", "PhysicsState", "motor_torque",

@@ -18,6 +18,7 @@ while a C-frame trace runs would see C's frame.
 from __future__ import annotations
 
 import contextlib
+import functools
 import warnings
 
 import jax
@@ -25,6 +26,7 @@ import jax.numpy as jnp
 import mujoco
 from flax import struct
 
+from specrl_jax.envs import compiled
 from specrl_jax.envs.zone import contact_frame, small_linalg
 from specrl_jax.envs.zone.mjx_import import mjx
 
@@ -163,6 +165,8 @@ class Physics:
             )
         self.backend = backend
         self.mj_model = model
+        self._digest = compiled.model_digest(model)
+        self.substep_sensors = substep_sensors
         if backend == "warp":
             _import_warp()
         self.model = mjx.put_model(model, impl=backend)
@@ -230,7 +234,19 @@ class Physics:
         return self.advance(state, jnp.clip(ctrl, -1.0, 1.0).astype(self.dtype), SUBSTEPS)
 
     def advance(self, state: PhysicsState, ctrl: jax.Array, substeps: int) -> PhysicsState:
-        """`substeps` steps then a forward pass, one world (any number of `vmap`s around it)."""
+        """`substeps` steps then a forward pass, one world (any number of `vmap`s around it).
+
+        Traced once per model, options and `substeps` in a process (`compiled.ByKey`): an env's
+        two resets (its own and the auto-reset's) and other envs of the same robot reuse it.
+        """
+        return _shared_advance(compiled.ByKey(self._trace_key(), self), state, ctrl, substeps)
+
+    def _trace_key(self) -> tuple:
+        """All that a trace of `advance` reads besides its arguments."""
+        return (self._digest, self.backend, jnp.dtype(self.dtype).name, self.substep_sensors,
+                self.unroll, self.small_cholesky, self.c_contact_frame)
+
+    def _advance_traced(self, state: PhysicsState, ctrl: jax.Array, substeps: int) -> PhysicsState:
         if self.backend == "jax":
             with contextlib.ExitStack() as scope:
                 if self.c_contact_frame:  # Warp's is installed at construction
@@ -304,6 +320,13 @@ class Physics:
             return out, jax.tree.map(lambda _: True, out)
 
         return worlds
+
+
+@functools.partial(jax.jit, static_argnums=(0, 3))
+def _shared_advance(
+    physics: compiled.ByKey[Physics], state: PhysicsState, ctrl: jax.Array, substeps: int
+) -> PhysicsState:
+    return physics.value._advance_traced(state, ctrl, substeps)
 
 
 __all__ = [
