@@ -210,8 +210,8 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         "processes": jax.process_count(),  # ... of this many processes
         "physics": physics,  # Zone worlds
         "setup_s": setup,  # env and map bank, before training
-        "wall_s_this_session": wall,
-        # every session's steps over every session's training time (rows' clock spans resumes)
+        "wall_s_this_call": wall,  # this call of train, resumed or not
+        # every call's steps over every call's training time (the rows' clock spans resumes)
         "env_steps_per_s": rows[-1]["env_steps"] * num_seeds / rows[-1]["wall_s"] if rows else 0.0,
         "final_success_rate": rows[-1].get("success_rate") if rows else None,
         "time_to_success": time_to_levels(rows),
