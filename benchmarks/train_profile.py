@@ -1,7 +1,7 @@
 """What bounds a training loop: seconds per PPO update, split into its rollout and its PPO step.
 
 The training is built as `specrl-jax train` builds it (`experiment.build` with the family's shape
-on this device kind, `experiment.default_overrides`, and its reset bank, `default_map_bank`;
+on this device kind, `experiment.default_overrides`, and its reset bank, `WorldFamily.map_bank_size`;
 `runs.init_seeds`); the method's phase before PPO (GCRL-LTL's primitives, LTL2Action's
 pretraining) is left out, its placeholders having the trained shapes. After a warm-up call
 (compilation timed apart) each part is timed over `--updates` updates with `block_until_ready`,
@@ -51,6 +51,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
 import harness
 
+from specrl_jax import families
 from specrl_jax.baselines import runs
 from specrl_jax.baselines.ppo import make_train
 from specrl_jax.benchmark import experiment
@@ -133,7 +134,7 @@ def build(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
     overrides.update({k: v for k, v in (
         ("num_envs", args.num_envs), ("num_steps", args.num_steps),
         ("num_minibatches", args.minibatches), ("update_epochs", args.epochs)) if v is not None})
-    map_bank = (experiment.default_map_bank(platform, world_family) if args.map_bank is None
+    map_bank = (families.get(world_family).map_bank_size(platform) if args.map_bank is None
                 else args.map_bank)
     key_bank, key_train = jax.random.split(jax.random.key(args.seed))
     start = time.perf_counter()

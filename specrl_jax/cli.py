@@ -340,7 +340,7 @@ def train_command(args: argparse.Namespace) -> int:
     out = Path(args.out or f"runs/{args.method}")
     env_options = dict(args.env_option)
     method_options = dict(args.method_option)
-    map_bank = (experiment.default_map_bank(platform, world_family) if args.map_bank is None
+    map_bank = (families.get(world_family).map_bank_size(platform) if args.map_bank is None
                 else args.map_bank)
     params, summary = experiment.train(args.method, args.env, out, overrides, args.seeds, args.seed,
                                        map_bank=map_bank or None, restart=args.restart,
@@ -402,7 +402,7 @@ def run_command(args: argparse.Namespace) -> int:
                    if steps != total else "")
         print(f"training GenZ-LTL on LetterLTL0-v0: {seeds} x {steps:,} steps{rounded} into {out}",
               flush=True)
-        map_bank = experiment.default_map_bank("gpu" if gpu else "cpu", "letter")
+        map_bank = families.LETTER.map_bank_size("gpu" if gpu else "cpu")
         params, summary = experiment.train("genz", "LetterLTL0-v0", out, overrides, seeds,
                                            map_bank=map_bank, restart=args.restart)
         print(f"trained GenZ-LTL: {seeds} x {summary['env_steps_per_seed']:,} steps at "

@@ -26,9 +26,14 @@ INFINITE_HORIZON_FACTOR = 10
 DEFAULT_TOTAL_STEPS = {"cpu": 200_000, "gpu": 15_000_000}
 
 
+def _kind(device_kind: str) -> str:
+    """"cpu", or "gpu" for any accelerator platform name."""
+    return "cpu" if device_kind == "cpu" else "gpu"
+
+
 def default_total_steps(device_kind: str) -> int:
     """Env steps of a training run on "cpu" or any accelerator platform name."""
-    return DEFAULT_TOTAL_STEPS["cpu" if device_kind == "cpu" else "gpu"]
+    return DEFAULT_TOTAL_STEPS[_kind(device_kind)]
 
 
 def _frozen(mapping: Mapping[str, Any]) -> Mapping[str, Any]:
@@ -90,12 +95,11 @@ class WorldFamily:
 
     def rollout_shape(self, device_kind: str) -> dict[str, int]:
         """`num_envs`, `num_steps`, `num_minibatches` per seed on "cpu" or "gpu" (any accelerator)."""
-        kind = "cpu" if device_kind == "cpu" else "gpu"
-        return dict(self.rollout[kind])
+        return dict(self.rollout[_kind(device_kind)])
 
     def map_bank_size(self, device_kind: str) -> int:
         """Layouts in the training reset bank on "cpu" or any accelerator (0: exact resets)."""
-        return int(self.map_bank.get("cpu" if device_kind == "cpu" else "gpu", 0))
+        return int(self.map_bank.get(_kind(device_kind), 0))
 
 
 _ZONE_PPO = {"num_envs": 16, "num_steps": 4096, "num_minibatches": 32, "gamma": 0.998,

@@ -35,12 +35,6 @@ SUCCESS_LEVELS = (0.5, 0.8, 0.9, 0.95, 0.98)
 PREPARED = "prepared.msgpack"
 
 
-def default_map_bank(device_kind: str, world_family: str) -> int:
-    """Layouts in a family's training reset bank on "cpu" or any accelerator platform name
-    (`families.WorldFamily.map_bank`; 0: exact resets)."""
-    return families.get(world_family).map_bank_size(device_kind)
-
-
 def family(env_id: str) -> str:
     """The world family of a single-agent env ID that methods train on ("letter", "zone", "arm")."""
     from specrl_jax.envs.registry import list_envs

@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from specrl_jax import families
 from specrl_jax.baselines import hosts
 from specrl_jax.benchmark import grid
 from specrl_jax.benchmark.grid import Cell
@@ -53,7 +54,7 @@ def default_train(cell: Cell, run_dir: Path, log: Log, max_wall_s: float | None 
                   ) -> tuple[Any, dict[str, Any]]:
     """Train `cell`'s seeds side by side with the family's shape on this device
     (`experiment.default_overrides`, with the method's accelerator settings) and the cell's PPO
-    overrides; LetterWorld and the arm reset from a bank of `experiment.default_map_bank` exactly
+    overrides; LetterWorld and the arm reset from a bank of `families.WorldFamily.map_bank_size` exactly
     sampled layouts (the family's `map_bank`). `max_wall_s` stops training at the first
     checkpoint after that many seconds (resumable)."""
     import jax
@@ -64,7 +65,7 @@ def default_train(cell: Cell, run_dir: Path, log: Log, max_wall_s: float | None 
     world_family = experiment.family(cell.env_id)
     overrides = experiment.default_overrides(platform, cell.total_steps, world_family, cell.method)
     overrides.update(dict(cell.ppo))
-    map_bank = experiment.default_map_bank(platform, world_family)
+    map_bank = families.get(world_family).map_bank_size(platform)
     return experiment.train(cell.method, cell.env_id, run_dir, overrides, cell.seeds, log=log,
                             max_wall_s=max_wall_s, map_bank=map_bank,
                             env_options=dict(cell.env_options) or None,
