@@ -62,18 +62,6 @@ _OP = re.compile(r"=\s.*?\s([a-z][\w\-]*)\(")
 _TARGET = re.compile(r'custom_call_target="([^"]+)"')
 
 
-def over_seeds(fn: Callable, num_seeds: int) -> Callable:
-    """`fn` over a leading seed axis of every argument and output, as `runs.seed_batched` runs
-    the training: vmapped, one seed unbatched."""
-    if num_seeds > 1:
-        return jax.vmap(fn)
-
-    def single(*args: Any) -> Any:
-        return jax.tree.map(lambda x: x[None], fn(*jax.tree.map(lambda x: x[0], args)))
-
-    return single
-
-
 def program_stats(compiled: Any) -> dict[str, Any]:
     """Size and structure of a compiled program (its HLO text after optimisation)."""
     ops: collections.Counter = collections.Counter()
@@ -162,8 +150,8 @@ def compile_parts(trainer: Any, runner: Any, seeds: int, n: int, parallel: bool
 
     lowered, seconds, loops = {}, {}, {}
     for part, fn, inputs, options in (  # tracing holds the GIL: one program at a time
-            ("rollout", over_seeds(rollout, seeds), (runner,), {"donate_argnums": 0}),
-            ("update", over_seeds(learn, seeds), None, {}),
+            ("rollout", runs.over_seeds(rollout, seeds), (runner,), {"donate_argnums": 0}),
+            ("update", runs.over_seeds(learn, seeds), None, {}),
             ("full", runs.seed_batched(trainer, seeds), (runner, n, jnp.int32(1)),
              {"static_argnums": 1, "donate_argnums": 0})):
         start = time.perf_counter()

@@ -92,17 +92,26 @@ def _rows(metrics: dict[str, Any], num: int, summarise: Callable) -> list[dict[s
     return out
 
 
-def seed_batched(trainer: Trainer, num_seeds: int) -> Callable:
-    """`trainer.updates` over a leading seed axis. One seed runs unbatched: under `vmap` the
-    KL stop's while-loop predicate is batched, which selects the whole carry every epoch."""
+def over_seeds(fn: Callable, num_seeds: int, in_axes: int | tuple[int | None, ...] = 0
+               ) -> Callable:
+    """`fn` over a leading seed axis of the arguments `in_axes` marks (0; None: shared by every
+    seed) and of every output. One seed runs unbatched: under `vmap` the KL stop's while-loop
+    predicate is batched, which selects the whole carry every epoch."""
     if num_seeds > 1:
-        return jax.vmap(trainer.updates, in_axes=(0, None, None))
+        return jax.vmap(fn, in_axes=in_axes)
 
-    def single(runner: RunnerState, num_updates: int, active: jax.Array):
-        runner, metrics = trainer.updates(jax.tree.map(lambda x: x[0], runner), num_updates, active)
-        return jax.tree.map(lambda x: x[None], (runner, metrics))
+    def single(*args: Any) -> Any:
+        axes = in_axes if isinstance(in_axes, tuple) else (in_axes,) * len(args)
+        args = [a if axis is None else jax.tree.map(lambda x: x[0], a)
+                for a, axis in zip(args, axes)]
+        return jax.tree.map(lambda x: x[None], fn(*args))
 
     return single
+
+
+def seed_batched(trainer: Trainer, num_seeds: int) -> Callable:
+    """`trainer.updates` over a leading seed axis of the runner state and the metrics."""
+    return over_seeds(trainer.updates, num_seeds, in_axes=(0, None, None))
 
 
 def init_seeds(trainer: Trainer, key: jax.Array, num_seeds: int,
