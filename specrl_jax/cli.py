@@ -308,9 +308,9 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
     arg("--num-steps", type=positive_int, default=None, help="rollout steps per env and update"),
     arg("--restart", action="store_true", help="discard a run already in --out instead of resuming it"),
     arg("--map-bank", type=nonnegative_int, default=None,
-        help="LetterWorld and the arm: exactly sampled layouts in the bank training resets "
-             "draw from (default 65,536 on an accelerator; on a CPU LetterWorld 4,096, the arm "
-             "512: set-up in seconds, the arm's in a minute; cached on disk; 0: exact resets)"),
+        help="exactly sampled layouts in the bank training resets draw from (default 65,536 "
+             "on an accelerator; on a CPU LetterWorld 4,096, zones and the arm 512: set-up in "
+             "seconds to a minute; cached on disk; 0: exact resets)"),
     arg("--out", default=None, help="run directory (default runs/<method>); resumes if present"),
     arg("--eval-episodes", type=nonnegative_int, default=0, help="then evaluate on the world's paper suites"),
     arg("--env-option", type=env_option, action="append", default=[], metavar="KEY=VALUE",

@@ -111,8 +111,8 @@ def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int
           env_options: dict[str, Any] | None = None, method_options: dict[str, Any] | None = None):
     """(world, train params, method object, PPOConfig) for `method` on `env_id` (built with
     `make(env_id, **env_options)`, the method with `make_method(..., **method_options)`);
-    `map_bank` (families with a bank: LetterWorld, the arm) draws training resets from a bank of
-    that many exactly sampled layouts."""
+    `map_bank` (families with a bank: LetterWorld, zones, the arm) draws training resets from a
+    bank of that many exactly sampled layouts."""
     config = check_settings(method, env_id, ppo_overrides, method_options)
     world, params = make(env_id, **(env_options or {}))
     params, method_obj = with_method(method, world, params, map_bank, key, method_options)

@@ -54,7 +54,7 @@ def default_train(cell: Cell, run_dir: Path, log: Log, max_wall_s: float | None 
                   ) -> tuple[Any, dict[str, Any]]:
     """Train `cell`'s seeds side by side with the family's shape on this device
     (`experiment.default_overrides`, with the method's accelerator settings) and the cell's PPO
-    overrides; LetterWorld and the arm reset from a bank of exactly sampled layouts, of the size
+    overrides; the worlds reset from a bank of exactly sampled layouts, of the size
     `WorldFamily.map_bank_size` gives on this device. `max_wall_s` stops training at the first
     checkpoint after that many seconds (resumable)."""
     import jax

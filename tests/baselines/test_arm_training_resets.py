@@ -19,7 +19,6 @@ from specrl_jax.envs.arm import model as arm_model
 def test_the_arm_family_trains_on_a_bank_of_its_own_size(monkeypatch, tmp_path):
     assert families.ARM.map_bank_size("cuda") == 65536 and families.ARM.map_bank_size("cpu") == 512
     assert families.LETTER.map_bank_size("cpu") == 4096
-    assert families.ZONE.map_bank_size("gpu") == 0 and not families.ZONE.map_bank
     seen = []
 
     def stop(method, env_id, out, overrides, seeds, seed=0, **kwargs):
