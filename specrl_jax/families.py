@@ -157,7 +157,10 @@ ARM = WorldFamily(
             "arm_grippers_arm/finite/ind", "arm_grippers_arm/finite/ood"),
     ppo={"num_envs": 16, "num_steps": 1024, "num_minibatches": 8, "gamma": 0.99,
          "ent_coef": 0.003},
-    rollout=_WIDE,
+    # the Zone update (65,536 samples, minibatches of 2,048) from 8x the arms for 1/8 the steps:
+    # an arm step's latency (~116 ms for 2,560 arms on an H200) bounds a 128-step rollout
+    rollout={"cpu": _WIDE["cpu"],
+             "gpu": {"num_envs": 4096, "num_steps": 16, "num_minibatches": 32}},
     task_sources={"genz": "genz/zone", "deepltl": "deepltl/zone",
                   "ltl2action": "Until_1_2_1_1", "rad": "rad"},
     formula_encoder="zone",

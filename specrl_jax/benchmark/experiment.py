@@ -63,8 +63,8 @@ def default_overrides(device_kind: str, total_steps: int | None = None,
                       world_family: str = "letter", method: str | None = None) -> dict[str, Any]:
     """The training shape of a world family on a device kind (`families.WorldFamily.rollout`):
     LetterWorld the reference's 16 x 128 on a CPU, 256 x 128 on an accelerator; ZoneEnv / Arm
-    16 x 128 on a CPU, 512 x 128 = 65,536 samples per update in minibatches of 2,048 on an
-    accelerator (the reference's update size, 16 x 4096). The per-sample settings are unchanged
+    16 x 128 on a CPU, 512 x 128 (the arm 4,096 x 16) = 65,536 samples per update in minibatches
+    of 2,048 on an accelerator (the reference's update size, 16 x 4096). The per-sample settings are unchanged
     (docs/fidelity.md), but for `method`'s own accelerator settings
     (`MethodSpec.accelerator_ppo`: GenZ-LTL's epochs capped at 10)."""
     shape: dict[str, Any] = families.get(world_family).rollout_shape(device_kind)

@@ -199,13 +199,18 @@ TRAIN_RATES: dict[tuple[str, str], tuple[float, str]] = {
     ("LetterLTL0-v0", "ltl2action"): (170_381, "H200, 5 x 15M"),
     ("LetterLTL0-v0", "ltl2action+bootcamp"): (168_794, "H200, 5 x 15M"),
     ("LetterLTL0-v0", "rad"): (1_518_550, "H200, 5 x 15M"),
-    ("PointLTL0-v0", "genz"): (508_832, "H100, 5 x 15M"),
+    ("PointLTL0-v0", "genz"): (775_296, "H200, 5 x 15M, bank resets"),
     ("PointLTL0-v0", "deepltl"): (307_996, "H100, 5 x 15M"),
     ("PointLTL0-v0", "gcrl"): (415_473, "H200, 5 x 15M"),
     ("PointLTL0-v0", "ltl2action"): (107_603, "H200, 5 x 15M"),
     ("PointLTL0-v0", "ltl2action+bootcamp"): (106_289, "H200, 5 x 15M"),
     ("PointLTL0-v0", "rad"): (696_040, "H200, 5 x 15M"),
+    ("PointLTL2-v0", "genz"): (672_776, "H200, 5 x 15M, bank resets"),
+    ("PointLTL2-v0", "deepltl"): (455_695, "H200, 5 x 15M, bank resets"),
+    ("PointLTL2-v0", "gcrl"): (503_667, "H200, 5 x 15M, bank resets"),
+    ("PointLTL2-v0", "rad"): (738_760, "H200, 5 x 15M, bank resets"),
     ("CarLTL0-v0", "genz"): (181_242, "H200, 5 x 15M, MuJoCo Warp"),
+    ("PandaLTLReach0Joints-v0", "genz"): (149_359, "H200, 5 x 4M, 4,096 x 16 per seed"),
     ("PointLTL0Vision-v0", "genz"): (61_396, "H100, 1 x 6M at 64 x 64, compile included"),
 }
 #: env ID (without variant suffix) -> measured auto-reset env-steps/s on one GPU, best batch
@@ -233,8 +238,14 @@ def _base_env(env_id: str) -> str:
 
 
 def _method_factor(key: str) -> float:
-    point = {m: r for (e, m), (r, _) in TRAIN_RATES.items() if e == "PointLTL0-v0"}
-    return point.get(key, point.get(key.split("+")[0], point["genz"])) / point["genz"]
+    """A method's training rate over GenZ-LTL's: from the PointLTL2 cells (all trained with bank
+    resets on one device), else from PointLTL0's."""
+    for env in ("PointLTL2-v0", "PointLTL0-v0"):
+        rates = {m: r for (e, m), (r, _) in TRAIN_RATES.items() if e == env}
+        rate = rates.get(key, rates.get(key.split("+")[0]))
+        if rate is not None:
+            return rate / rates["genz"]
+    return 1.0
 
 
 def training_rate(c: Cell) -> float:

@@ -59,7 +59,12 @@ def test_selection_by_pattern_and_estimates():
         assert 0 < grid.estimate_seconds(c) < 3 * 24 * 3600, c.name
     # a measured cell: 5 x 15M over its measured rate, plus setup and evaluation
     c = grid.cell("PointLTL0-v0/genz")
-    assert grid.estimate_seconds(c) == pytest.approx(75e6 / 508_832 + grid.SETUP_S + 42.0)
+    rate = grid.TRAIN_RATES[("PointLTL0-v0", "genz")][0]
+    assert grid.estimate_seconds(c) == pytest.approx(75e6 / rate + grid.SETUP_S + 42.0)
+    # an unmeasured cell: its world's GenZ-LTL rate times the method's ratio on PointLTL2
+    ratio = grid.TRAIN_RATES[("PointLTL2-v0", "rad")][0] / grid.TRAIN_RATES[("PointLTL2-v0", "genz")][0]
+    assert grid.training_rate(grid.cell("CarLTL0-v0/rad")) == pytest.approx(
+        grid.TRAIN_RATES[("CarLTL0-v0", "genz")][0] * ratio)
 
 
 def test_paper_numbers_are_data_with_sources():
