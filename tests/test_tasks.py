@@ -106,8 +106,9 @@ def test_epsilon_step_keeps_the_world_and_counts_toward_the_horizon(task):
     (s2, r2, _, _, i2), = play(step_task, s1, [RIGHT], epsilons=[True])
     assert not bool(i2["epsilon"]) and np.array_equal(np.asarray(s2.env_state.agent), [0, 1])
     assert bool(i2["accepted"]) and r2 == 1.0
-    (_, r3, t3, _, i3), = play(step_task, s2, [LEFT])
-    assert t3 and r3 == -1.0 and bool(i3["violation"])  # an empty cell violates in state 1
+    (s3, r3, t3, _, i3), = play(step_task, s2, [LEFT])
+    # an empty cell kills the jumped run, not `F G a`: back to state 0, the run that never jumped
+    assert not t3 and r3 == 0.0 and not bool(i3["violation"]) and int(s3.q) == 0
     # five world steps in state 0, then an epsilon step: the sixth step hits the horizon
     records = play(step_task, state, [UP] * 6, epsilons=[False] * 5 + [True])
     assert [tr for _, _, _, tr, _ in records] == [False] * 5 + [True]

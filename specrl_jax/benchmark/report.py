@@ -20,7 +20,8 @@ import yaml
 
 from specrl_jax.benchmark import grid, paper
 from specrl_jax.benchmark.grid import Cell
-from specrl_jax.benchmark.store import Store, suite_metric, suite_seeds
+from specrl_jax.benchmark.store import Store, scored_now, suite_metric, suite_seeds
+from specrl_jax.specs.suites import INFINITE_SCORING
 
 MEASUREMENTS = Path(__file__).resolve().parent / "data" / "measurements.yaml"
 METHOD_NAMES = {"genz": "GenZ-LTL", "deepltl": "DeepLTL", "ltl2action": "LTL2Action",
@@ -93,6 +94,7 @@ def suite_table(env_id: str, suite: str, rows: Sequence[tuple[Cell, dict[str, An
     head = ["method", *(label for _, label in columns),
             *(f"paper {dict(columns)[m]}" for m in quoted), "seeds x episodes, horizon"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    any_stale = False
     for c, record in rows:
         entry = record.get("suites", {}).get(suite)
         if entry is None:
@@ -103,8 +105,14 @@ def suite_table(env_id: str, suite: str, rows: Sequence[tuple[Cell, dict[str, An
             number = paper.lookup(env_id, suite, c.method, m)
             theirs.append(number.text() if number else "-")
         size = f"{len(entry['seeds'])} x {entry['episodes_per_seed']}, {entry['horizon']:,}"
-        lines.append("| " + " | ".join([method_label(c) + _state_note(c, record, store),
-                                         *ours, *theirs, size]) + " |")
+        stale = not scored_now(suite, entry)
+        any_stale |= stale
+        lines.append("| " + " | ".join([method_label(c) + _state_note(c, record, store)
+                                         + (" †" if stale else ""), *ours, *theirs, size]) + " |")
+    if any_stale:
+        lines += ["", ("† scored before the suite's current version (`specs.suites.INFINITE_SCORING`"
+                       f": \"{INFINITE_SCORING}\"), which changes only specs with epsilon edges "
+                       "(persistence); `specrl-jax reproduce --rerun` rescores it.")]
     return lines if len(lines) > 2 else []
 
 

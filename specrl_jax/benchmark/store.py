@@ -2,8 +2,8 @@
 (`grid.file_name(cell name)`, e.g. `LetterLTL0-v0__genz/`), shipped with the package:
 
 - `cell.json`: the cell's settings, state (`done` / `partial`), versions, device, wall times,
-  training summary and, per suite, the per-seed metrics (`{metric: [seed][spec]}`) with their
-  mean and std over seeds per spec and for the suite;
+  training summary and, per suite, its version (`specs.suite_version`) and the per-seed metrics
+  (`{metric: [seed][spec]}`) with their mean and std over seeds per spec and for the suite;
 - `params_seed1.msgpack`: seed 1's trained parameters (no seed axis; `experiment.load_params`
   reads it with `num_seeds=1`);
 - `metrics.jsonl`: the training curve (one row per PPO update, seed means);
@@ -24,6 +24,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
+from specrl_jax import specs
 from specrl_jax.benchmark import grid
 from specrl_jax.benchmark.grid import Cell
 
@@ -64,6 +65,15 @@ def suite_entry(result: Any) -> dict[str, Any]:
     keys = ("method", "specs", "is_finite", "seeds", "episodes_per_seed", "horizon", "summary",
             "per_seed")
     return _clean({k: result[k] for k in keys})
+
+
+def scored_now(suite: str, entry: dict[str, Any]) -> bool:
+    """Whether a stored suite entry was scored as `suite` is now (its `suite_version`; entries
+    stored before versions were recorded count as current unless the suite's automata take
+    epsilon jumps, whose scoring changed since: `specs.suites.INFINITE_SCORING`)."""
+    if "suite_version" in entry:
+        return entry["suite_version"] == specs.suite_version(suite)
+    return not specs.suite_info(suite).may_jump
 
 
 class Store:
@@ -144,7 +154,9 @@ class Store:
         """Merge evaluated suites (`SuiteResult`s) into the cell's record and write it."""
         record = self.read(cell) or self.new_record(cell)
         for result in results:
-            record["suites"][result.suite] = suite_entry(result)
+            entry = suite_entry(result)
+            entry["suite_version"] = specs.suite_version(result.suite)
+            record["suites"][result.suite] = entry
         if wall_s is not None:
             record["wall_s"]["eval"] = record["wall_s"].get("eval", 0.0) + float(wall_s)
         self.write(cell, record)

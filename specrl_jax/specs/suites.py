@@ -40,6 +40,10 @@ COMPLEXITY_SIZE = 10
 COMPLEXITY_SEQ_LENS = tuple(range(2, 11))
 COMPLEXITY_DISJ = (0, 1, 2, 3)
 COMPLEXITY_KINDS = ("reach_only", "reach_avoid")
+#: how an infinite suite's episodes are scored, part of its version: an epsilon jump whose run
+#: dies while the formula is still open falls back to the run that never jumped, not a violation
+#: (`tasks.sources.fall_back_run`)
+INFINITE_SCORING = "violation when the formula is violated; a wrong epsilon jump falls back"
 
 
 
@@ -72,10 +76,18 @@ class SuiteInfo:
 
     @property
     def version(self) -> str:
-        """A short hash of the suite's formulas, propositions and horizon: any change to what
-        the suite asks gives it a new version (`suite_version`)."""
-        text = "\n".join((self.horizon, ",".join(self.propositions), *self.formulas))
+        """A short hash of the suite's formulas, propositions and horizon, and for a suite whose
+        automata take epsilon jumps of how its episodes are scored (`INFINITE_SCORING`): any
+        change to what the suite asks gives it a new version (`suite_version`)."""
+        scoring = (INFINITE_SCORING,) if self.may_jump else ()
+        text = "\n".join((self.horizon, ",".join(self.propositions), *self.formulas, *scoring))
         return hashlib.sha256(text.encode()).hexdigest()[:10]
+
+    @property
+    def may_jump(self) -> bool:
+        """Whether some spec's automaton has an epsilon edge (persistence), so that the
+        suite's scores depend on `INFINITE_SCORING`."""
+        return _may_jump(self.formulas, self.propositions)
 
     @property
     def horizon_factor(self) -> int:
@@ -83,6 +95,17 @@ class SuiteInfo:
         `INFINITE_HORIZON_FACTOR` for infinite ones (LetterWorld 750, Zone 10,000, Arm 2,000
         steps), so that an agent can complete many cycles."""
         return 1 if self.is_finite else INFINITE_HORIZON_FACTOR
+
+
+@functools.cache
+def _may_jump(formulas: tuple[str, ...], propositions: tuple[str, ...]) -> bool:
+    """Whether some formula's automaton has an epsilon edge (no deterministic Buchi automaton:
+    persistence), over every assignment of the propositions."""
+    from specrl_jax.automata import translate
+
+    table = translate.all_subsets(len(propositions))
+    return any(bool((np.asarray(translate.translate(f, propositions, table).epsilon) >= 0).any())
+               for f in formulas)
 
 
 # paper family -> (env family, propositions, alphabet)

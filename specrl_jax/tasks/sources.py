@@ -9,7 +9,10 @@ A source is a static Python object with pure functions over a small task pytree:
 `source_params` is the trainer-carried task distribution (a curriculum state) or None.
 
 - `AutomatonSource`: a stacked bank of compiled specs (evaluation, formula-conditioned training);
-  the task is the spec index and the automaton state; `index` picks the spec.
+  the task is the spec index and the automaton state; `index` picks the spec. An epsilon jump
+  that turns out wrong (the run it began dies while the formula is still open, e.g. leaving `x`
+  after jumping into the loop of `F G x`) falls back to the run that never jumped
+  (`fall_back_run`).
 - `SequenceSource`: reach-avoid sequences drawn from a curriculum (DeepLTL's training tasks; with
   `continual=True`, GenZ-LTL's one-subgoal-at-a-time tasks: a completed sequence is replaced by a
   fresh draw and the episode goes on).
@@ -82,7 +85,8 @@ class AutomatonTask:
     """An episode's spec (an index into the bank) and automaton state."""
 
     spec_index: jax.Array  # int32[]
-    q: jax.Array  # int32[]
+    q: jax.Array  # int32[], the run followed (it may have taken epsilon edges)
+    q_free: jax.Array  # int32[], the run that never takes an epsilon edge (`fall_back_run`)
     bank: SpecBank = struct.field(pytree_node=False)
 
     @property
@@ -92,10 +96,38 @@ class AutomatonTask:
         return jax.tree.map(lambda leaf: leaf[self.spec_index], self.bank.specs)
 
 
-class AutomatonSource:
-    """A stacked batch of `K` compiled specs; a reset without an index draws one uniformly."""
+def fall_back_run(stepped: tuple[jax.Array, ...], free: tuple[jax.Array, ...]
+                  ) -> tuple[tuple[jax.Array, ...], jax.Array]:
+    """The followed run's step outcome, or the never-jumping run's where only the former died.
 
-    def __init__(self, specs: Any, alphabet: jax.Array):
+    Our limit-deterministic automata (docs/automata.md, Translation 3) read every word on one
+    epsilon-free run in their initial part, whose state has an empty language exactly when the
+    formula is violated; a run that jumped into an accepting copy dies as soon as the word
+    leaves what that copy guessed (for `F G x & G !y`: any step outside `x`, the empty label
+    included), a wrong guess, not a violation. There the task continues on the epsilon-free
+    run, and the agent may jump again: GenZ-LTL's set-of-states tracking, with the epsilon
+    edges that its tracker leaves out (docs/fidelity.md).
+
+    Args:
+        stepped: `(q, accepted, success, violation)` of the followed run, int32[] / bool[] each.
+        free: the same for the run that never jumped.
+
+    Returns:
+        The outcome the task takes, and `fell_back` bool[].
+    """
+    fell_back = stepped[3] & ~free[3]
+    return tuple(jnp.where(fell_back, f, s) for s, f in zip(stepped, free)), fell_back
+
+
+class AutomatonSource:
+    """A stacked batch of `K` compiled specs; a reset without an index draws one uniformly.
+
+    `fall_back` (default): a run that dies after an epsilon jump while the formula is still open
+    returns to the run that never jumped (`fall_back_run`); off, the jumped run's death is a
+    violation (DeepLTL's single-state tracker).
+    """
+
+    def __init__(self, specs: Any, alphabet: jax.Array, fall_back: bool = True):
         if not hasattr(specs, "delta") or jnp.ndim(specs.delta) != 3:
             raise ValueError(
                 "specs must be a stacked batch of CompiledSpec (delta of shape [K, S, A]); "
@@ -122,6 +154,7 @@ class AutomatonSource:
         self.symbol_is_row = bool(np.array_equal(spec_alphabet, env_alphabet))
         #: static: some spec has an epsilon edge (else the loop never keeps a world step back)
         self.may_take_epsilon = bool((np.asarray(specs.epsilon) >= 0).any())
+        self.fall_back = fall_back
 
     def init_params(self) -> None:
         return None
@@ -131,7 +164,8 @@ class AutomatonSource:
         if index is None:
             index = jax.random.randint(key, (), 0, self.num_tasks)
         index = jnp.asarray(index, jnp.int32)
-        return AutomatonTask(index, self.specs.init[index].astype(jnp.int32), self.bank)
+        init = self.specs.init[index].astype(jnp.int32)
+        return AutomatonTask(index, init, init, self.bank)
 
     def next_index(self, task: AutomatonTask) -> jax.Array:
         """The spec of the next episode after `task`'s: the following one in the bank."""
@@ -143,13 +177,21 @@ class AutomatonSource:
     def step(self, key: jax.Array, task: AutomatonTask, props: jax.Array, symbol: jax.Array | None,
              is_epsilon: jax.Array, slot: jax.Array, source_params: Any = None
              ) -> tuple[AutomatonTask, Events]:
-        q_next, accepted, success, violation = automata.step_in_batch(
-            self.specs, task.spec_index, task.q, props, jnp.where(is_epsilon, slot, -1),
-            symbol if self.symbol_is_row else None,
-        )
+        symbol = symbol if self.symbol_is_row else None
+        stepped = automata.step_in_batch(self.specs, task.spec_index, task.q, props,
+                                         jnp.where(is_epsilon, slot, -1), symbol)
+        q_free, fell_back = stepped[0], jnp.zeros((), bool)
+        if self.may_take_epsilon and self.fall_back:  # static: only specs with epsilon edges
+            free = automata.step_in_batch(self.specs, task.spec_index, task.q_free, props,
+                                          jnp.int32(-1), symbol)
+            free = tuple(jnp.where(is_epsilon, old, new)  # an epsilon step reads no label
+                         for old, new in zip((task.q_free, False, False, False), free))
+            stepped, fell_back = fall_back_run(stepped, free)
+            q_free = free[0]
+        q_next, accepted, success, violation = stepped
         success = success & self.specs.is_finite[task.spec_index]
-        progress = ((q_next != task.q) | accepted) & ~violation
-        return task.replace(q=q_next), Events(progress, accepted, success, violation)
+        progress = ((q_next != task.q) | accepted) & ~violation & ~fell_back
+        return task.replace(q=q_next, q_free=q_free), Events(progress, accepted, success, violation)
 
 
 @struct.dataclass

@@ -119,3 +119,37 @@ def test_deepltl_agent_jumps_in_the_goal_and_keeps_its_sequence():
     policy = deepltl.make_policy(DeepLTLScript(world.alphabet), world.alphabet, world.obs_kinds,
                                  deterministic=True)
     _check_stays(policy)
+
+
+class DriftWorld(StayWorld):
+    """StayWorld whose agent slides onto an empty neighbour cell every `DRIFT` steps whatever
+    the action, as the Point robot's momentum carries it out of a zone."""
+
+    def step_env(self, key, state, action, params):
+        n = self.config.grid_size
+        targets = (state.agent + jnp.asarray(MOVES)) % n  # [4, 2]
+        empty = state.letters[targets[:, 0], targets[:, 1]] < 0
+        slide = (state.time % DRIFT == DRIFT - 1) & jnp.any(empty)
+        action = jnp.where(slide, jnp.argmax(empty), action)
+        return super().step_env(key, state, action, params)
+
+
+DRIFT = 6
+
+
+def test_leaving_the_goal_after_the_jump_falls_back_and_the_agent_jumps_again():
+    world = DriftWorld(TinyConfig(grid_size=5, num_letters=3))
+    policy = genz.make_policy(GenZScript(), world.alphabet, world.obs_kinds, replan_steps=6)
+    short, long = _outcomes_in(world, policy, 30), _outcomes_in(world, policy, 60)
+    for table in (short, long):
+        assert not np.asarray(table.violation).any()
+        assert not np.asarray(table.aborted).any()
+    visits_short, visits_long = np.asarray(short.num_accepting), np.asarray(long.num_accepting)
+    # each drift costs a step back into 'a' and a jump: DRIFT - 2 of every DRIFT steps accept
+    assert (visits_long - visits_short >= 30 * (DRIFT - 3) // DRIFT).all(), (visits_short, visits_long)
+
+
+def _outcomes_in(world, policy, horizon: int):
+    params = TinyParams(max_steps=horizon)
+    return evaluate(policy, (world, params), [PERSISTENCE], seeds=[0], episodes_per_seed=6,
+                    horizon=horizon).table

@@ -41,3 +41,17 @@ def test_trained_parameters_of_another_world_or_an_unknown_name_are_refused(tmp_
     assert "neither a run directory" in capsys.readouterr().err
     with pytest.raises(ValueError, match="no trained parameters"):
         load("PandaLTLReach0Joints-v0/genz", "PandaLTLReach0Joints-v0")
+
+
+def test_suite_versions_mark_entries_scored_before_the_epsilon_fall_back():
+    from specrl_jax import specs
+    from specrl_jax.benchmark.store import scored_now
+
+    assert specs.suite_info("zone/infinite/per").may_jump
+    assert not specs.suite_info("zone/infinite/rsp").may_jump
+    assert not specs.suite_info("zone/finite/ind").may_jump
+    per = specs.suite_version("zone/infinite/per")
+    assert not scored_now("zone/infinite/per", {"is_finite": [False]})  # stored before versions
+    assert scored_now("zone/infinite/per", {"suite_version": per})
+    assert not scored_now("zone/infinite/per", {"suite_version": "0123456789"})
+    assert scored_now("zone/infinite/rsp", {"is_finite": [False]})  # no jumps: scored alike

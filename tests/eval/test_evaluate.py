@@ -112,10 +112,13 @@ def test_epsilon_actions_from_the_policy():
 
     result = evaluate(epsilon_first, (ENV, PARAMS), stack_specs([persistence_spec()]),
                       seeds=[1], episodes_per_seed=16)
-    # step 1 is the epsilon step; step 2 moves down from (0, 0): a violation unless it lands on a
+    # step 1 is the epsilon step; step 2 moves down from (0, 0): off `a` the jumped run dies, a
+    # wrong guess that falls back to the waiting state (`tasks.sources.fall_back_run`), since
+    # no word violates `FG a`; on `a` every step accepts until the agent leaves it
     t = result.table
-    assert t.violation.all() and (t.steps >= 2).all() and (t.steps == 2).mean() > 0.5
-    assert (t.num_accepting == t.steps - 2).all()  # each a after the epsilon step is accepting
+    assert not t.violation.any() and (t.steps >= 2).all()
+    assert (t.num_accepting <= t.steps - 2).all()
+    assert (t.num_accepting == 0).mean() > 0.5 and (t.num_accepting > 0).any()
 
 
 def test_bad_arguments():
