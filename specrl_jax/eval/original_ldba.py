@@ -33,14 +33,27 @@ original's automata"):
   has no epsilon edge at that moment the jump stays pending and is taken as soon as the
   tracker is in a state that has one (before the next label is read). A policy that never
   jumps never jumps here either (the original GenZ-LTL's tracker ignores epsilon edges too).
+  A followed run that dies while the run that never jumped is alive falls back to the latter
+  (a wrong guess, as our task's `tasks.sources.fall_back_run`); the pending jump is dropped,
+  and the tracker jumps again when ours does.
 * "hindsight": policy-independent; the tracker follows every run of the LDBA at once (all
-  jump times) and reports the most accepting visits any run has made, dead runs included.
-  An upper bound of "policy" on the same labels, and of what any epsilon policy could count.
+  jump times) and reports the most accepting visits any run has made, dead runs included:
+  the best single run, an upper bound of "policy" on the same labels until "policy" falls
+  back (it does not fall back: a policy that jumps again after one can count more).
 
 Both rules read labels deterministically (Owl's labelled edges are deterministic; the original
 takes the first matching edge, and so does this parser). A label that leaves the automaton
 (no edge: the original's completion sink) kills the run; `is_violated` is the original's
 violation flag: every live run sits in a bottom SCC without an accepting transition.
+
+The fall-back is well-defined on any automaton read here, since labelled edges are read
+deterministically: the run that never jumped is unique. On the shipped automata it is also
+Owl's initial component: epsilon edges appear only in the nine persistence LDBAs, from the
+start state (the only state that labels reach from `Start:`, with no accepting edge) into a
+component that labels alone never leave and that has no epsilon edge; that start state's
+only labelled edge loops on the labels the formula allows, so the run that never jumped dies
+exactly when the formula is violated (another colour), as ours
+(`test_original_ldba.py::test_shipped_epsilon_edges_leave_a_deterministic_initial_part`).
 """
 
 from __future__ import annotations
@@ -99,11 +112,13 @@ class TrackerState:
             run is ("policy": at most one entry >= 0).
         visits: int32[] accepting visits counted so far (the most of any run, dead ones too).
         pending: bool[] "policy": our automaton jumped, the original's has not yet.
+        free: int32[] "policy": the state of the run that never took an epsilon edge, -1 dead.
     """
 
     counts: jnp.ndarray
     visits: jnp.ndarray
     pending: jnp.ndarray
+    free: jnp.ndarray
 
 
 # ---------------------------------------------------------------------------------------------
@@ -402,7 +417,8 @@ def init(ldba: OriginalLDBA) -> TrackerState:
     """The tracker at the start of an episode: one run in the initial state (none if absent)."""
     num = ldba.delta.shape[-2]
     counts = jnp.where((jnp.arange(num) == ldba.init) & ldba.present, 0, -1).astype(jnp.int32)
-    return TrackerState(counts=counts, visits=jnp.int32(0), pending=jnp.bool_(False))
+    free = jnp.where(ldba.present, ldba.init, -1).astype(jnp.int32)
+    return TrackerState(counts=counts, visits=jnp.int32(0), pending=jnp.bool_(False), free=free)
 
 
 def symbol_of(ldba: OriginalLDBA, props: jax.Array) -> jax.Array:
@@ -435,21 +451,35 @@ def _jump(ldba: OriginalLDBA, q: jax.Array, want: jax.Array) -> tuple[jax.Array,
     return jnp.where(want & can, edge, q), want & ~can
 
 
+def _read_run(ldba: OriginalLDBA, q: jax.Array, symbol: jax.Array, reads: jax.Array
+              ) -> tuple[jax.Array, jax.Array]:
+    """One run in state q (-1 dead) reads `symbol` where `reads` and the symbol is in the
+    alphabet; returns (state, accepted bool[])."""
+    num_symbols = ldba.delta.shape[1]
+    reads = reads & (q >= 0) & (symbol >= 0) & (symbol < num_symbols)
+    row, column = jnp.maximum(q, 0), jnp.clip(symbol, 0, num_symbols - 1)
+    return (jnp.where(reads, ldba.delta[row, column], q),
+            reads & ldba.accepting[row, column])
+
+
 def _step_policy(ldba: OriginalLDBA, tracker: TrackerState, symbol: jax.Array,
                  our_epsilon: jax.Array) -> tuple[TrackerState, jax.Array]:
-    """The one run of the "policy" rule, followed by state (O(S) per step, no S x S work)."""
-    num_states, num_symbols = ldba.delta.shape
+    """The followed run of the "policy" rule and the run that never jumps, by state (O(S) per
+    step, no S x S work)."""
+    num_states = ldba.delta.shape[0]
     q, pending = _jump(ldba, state(tracker), our_epsilon | tracker.pending)
-    reads = (q >= 0) & ~our_epsilon & (symbol >= 0) & (symbol < num_symbols)
-    row, column = jnp.maximum(q, 0), jnp.clip(symbol, 0, num_symbols - 1)
-    accepted = reads & ldba.accepting[row, column]
-    q = jnp.where(reads, ldba.delta[row, column], q)
+    q, accepted = _read_run(ldba, q, symbol, ~our_epsilon)
+    free, accepted_free = _read_run(ldba, tracker.free, symbol, ~our_epsilon)
+    # the jumped run died, the formula is open: a wrong guess, not a violation (our task's rule)
+    fell_back = (q < 0) & (free >= 0)
+    q, accepted = jnp.where(fell_back, free, q), jnp.where(fell_back, accepted_free, accepted)
+    pending = pending & ~fell_back
     # a pending jump is taken as soon as the run arrives in a state with an epsilon edge
     q_jumped, still = _jump(ldba, q, pending & ~our_epsilon)
     q, pending = q_jumped, jnp.where(our_epsilon, pending, still)
     visits = tracker.visits + accepted.astype(jnp.int32)
     counts = jnp.where(jnp.arange(num_states) == q, visits, -1).astype(jnp.int32)
-    return TrackerState(counts=counts, visits=visits, pending=pending), accepted
+    return TrackerState(counts=counts, visits=visits, pending=pending, free=free), accepted
 
 
 def step(ldba: OriginalLDBA, tracker: TrackerState, label: jax.Array, our_epsilon: jax.Array,
@@ -479,7 +509,7 @@ def step(ldba: OriginalLDBA, tracker: TrackerState, label: jax.Array, our_epsilo
     counts = jnp.where(our_epsilon, tracker.counts, _gather_max(tracker.counts, ldba.closure))
     counts = jnp.where(our_epsilon, counts, _read(ldba, counts, symbol))
     visits = jnp.maximum(tracker.visits, counts.max())
-    new = TrackerState(counts=counts, visits=visits, pending=tracker.pending)
+    new = TrackerState(counts=counts, visits=visits, pending=tracker.pending, free=tracker.free)
     return new, visits > tracker.visits
 
 

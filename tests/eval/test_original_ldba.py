@@ -19,8 +19,9 @@ import spot
 import buddy  # isort: skip  (importable once spot has put its own directory on sys.path)
 
 from specrl_jax import specs
-from specrl_jax.automata import product, zero_or_one
+from specrl_jax.automata import compile_suite, product, zero_or_one
 from specrl_jax.eval import original_ldba as ol
+from specrl_jax.tasks.sources import AutomatonSource
 
 EPS_AP = "eps__"
 
@@ -169,21 +170,28 @@ def python_edges(hoa: str) -> tuple[int, list[str], dict[int, list]]:
     return start, names, edges
 
 
-def python_walk(hoa: str, props, word, jump_at) -> tuple[int, bool]:
+def python_walk(hoa: str, props, word, jumps) -> tuple[int, bool]:
     """DeepLTL's tracker: labels read by the first satisfied edge (no edge: the sink), the
-    unique epsilon edge taken at step `jump_at` or as soon as one exists afterwards."""
+    unique epsilon edge taken at each step in `jumps` or as soon as one exists afterwards; a
+    run that dies while the run that never jumped lives falls back to it (our task's rule)."""
     start, names, edges = python_edges(hoa)
-    q, count, want = start, 0, False
+    q, free, count, want = start, start, 0, False
+
+    def read(state, v):
+        if state is None:
+            return None, False
+        nxt = [(d, a) for e, d, a in edges.get(state, []) if e is not None and eval(e, {"v": v})]
+        return nxt[0] if nxt else (None, False)
+
     for t, label in enumerate(word):
-        want = want or t == jump_at
+        want = want or t in jumps
         eps = [d for e, d, _ in edges.get(q, []) if e is None] if q is not None else []
         if want and eps:
             q, want = eps[0], False
-        if q is None:
-            continue
         v = [label[props.index(n)] for n in names]
-        nxt = [(d, a) for e, d, a in edges.get(q, []) if e is not None and eval(e, {"v": v})]
-        q, acc = (nxt[0] if nxt else (None, False))
+        (q, acc), (free, acc_free) = read(q, v), read(free, v)
+        if q is None and free is not None:
+            q, acc, want = free, acc_free, False
         count += acc
     return count, q is None
 
@@ -213,23 +221,25 @@ def sticky_word(rng, num_symbols: int, length: int, stay: float = 0.7) -> np.nda
                                    "zone/infinite/rsp", "zone/infinite/per",
                                    "multi_agent_zone/infinite/rsp"])
 def test_policy_counts_match_python_walk(suite):
-    """Random sticky words, our epsilon step inserted at a random time: the tracker's visits and
-    death equal the plain-Python walk that takes the jump at the same label (the epsilon step
-    consumes no label)."""
+    """Random sticky words, our epsilon steps inserted at two random times: the tracker's visits
+    and death equal the plain-Python walk that takes the jumps at the same labels (an epsilon
+    step consumes no label). Half the words use only labels the start state reads, so that
+    persistence runs fall back after a jump and jump again."""
     rng = np.random.default_rng(7)
     env = world(suite)
     alphabet = np.asarray(env.alphabet)
     for index in range(3):
         ldba, hoa = built(suite, index), ENTRIES_BY_KEY[suite, index]
-        for _ in range(4):
-            word = sticky_word(rng, alphabet.shape[0], 40)
-            jump_at = int(rng.integers(0, 41))
-            symbols = np.insert(word, jump_at, 0)  # label of the epsilon step is not read
+        read_at_start = np.flatnonzero(np.asarray(ldba.delta)[int(ldba.init)] >= 0)
+        for labels in (np.arange(alphabet.shape[0]), read_at_start) * 2:
+            word = labels[sticky_word(rng, len(labels), 40)]
+            jumps = np.sort(rng.choice(41, 2, replace=False))
+            symbols = np.insert(word, jumps, 0)  # label of an epsilon step is not read
             flags = np.zeros(len(symbols), bool)
-            flags[jump_at] = True
+            flags[jumps + np.arange(2)] = True
             tracker, accepted = _count(ldba, jnp.asarray(symbols), jnp.asarray(flags), "policy")
             count, dead = python_walk(hoa, env.propositions, [alphabet[s] for s in word],
-                                      jump_at)
+                                      set(jumps.tolist()))
             assert int(tracker.visits) == count == int(np.asarray(accepted).sum())
             assert (int(ol.state(tracker)) == -1) == dead
 
@@ -245,7 +255,7 @@ def test_hindsight_is_the_best_jump_time():
             ldba, hoa = built(suite, index), ENTRIES_BY_KEY[suite, index]
             for _ in range(5):
                 word = sticky_word(rng, alphabet.shape[0], 30, stay=0.85)
-                best = max(python_walk(hoa, env.propositions, [alphabet[s] for s in word], t)[0]
+                best = max(python_walk(hoa, env.propositions, [alphabet[s] for s in word], {t})[0]
                            for t in range(-1, len(word)))
                 none = jnp.zeros(len(word), bool)
                 tracker, _ = _count(ldba, jnp.asarray(word), none, "hindsight")
@@ -258,7 +268,7 @@ def test_hand_counted_words():
     """Hand-counted visits. Zone response (G F blue & G(blue -> F green) & G!(yellow|magenta)):
     Owl's automaton accepts on the first non-blue step and on every green that answers a blue.
     Zone persistence (F G yellow & ...): one visit per yellow step after the jump; leaving
-    yellow after it is the original's violation (the sink)."""
+    yellow after it falls back to the run that never jumped (state 0), no violation."""
     none, blue, green, magenta, yellow = range(5)
     rsp = built("zone/infinite/rsp", 0)
     word = [none, blue, none, green, green, blue, green]
@@ -273,7 +283,7 @@ def test_hand_counted_words():
     flags = jnp.asarray([False, False, True, False, False, False, False])
     tracker, accepted = _count(per, symbols, flags, "policy")
     assert np.asarray(accepted).tolist() == [False, False, False, True, True, False, False]
-    assert bool(ol.is_violated(per, tracker)) and int(ol.state(tracker)) == -1
+    assert not bool(ol.is_violated(per, tracker)) and int(ol.state(tracker)) == 0
     # hindsight: the three yellow labels in a row (our epsilon step reads none) from a jump
     # before the first of them; the run that stayed in state 0 is still alive
     tracker, _ = _count(per, symbols, flags, "hindsight")
@@ -293,9 +303,70 @@ def test_pending_jump_waits_for_an_epsilon_edge():
     flags = jnp.asarray([True] + [False] * 7)
     tracker, accepted = _count(ldba, symbols, flags, "policy")
     assert np.asarray(accepted).tolist() == [False] * 5 + [True, True, False]
-    assert int(ol.state(tracker)) == -1
+    # leaving blue kills the jumped run: back to the run that never jumped, waiting in state 1
+    assert int(ol.state(tracker)) == 1 and not bool(ol.is_violated(ldba, tracker))
     tracker, _ = _count(ldba, symbols[1:], flags[1:], "policy")  # no jump of ours: none here
     assert int(tracker.visits) == 0
+
+
+def test_fall_back_keeps_counting_on_ours_and_the_original_after_a_wrong_jump():
+    """`F G a & G !b` on our automaton (`AutomatonSource`) and on an Owl-shaped original: leaving
+    'a' after the jump falls back on both, re-entering and jumping again counts again on both;
+    'b' violates ours and kills the original's runs, which count nothing afterwards."""
+    props = ("a", "b", "c")
+    alphabet = zero_or_one(3)  # rows: none, a, b, c
+    none, a, b = alphabet[0], alphabet[1], alphabet[2]
+    hoa = ("HOA: v1\nStart: 0\nacc-name: Buchi\nAcceptance: 1 Inf(0)\nAP: 2 \"a\" \"b\"\n"
+           "--BODY--\nState: 0\n[!1] 0\n1\nState: 1\n[0 & !1] 1 {0}\n--END--\n")
+    ldba = ol.build_ldba(hoa, props, alphabet)
+    source = AutomatonSource(compile_suite(["F G a & G !b"], props, alphabet),
+                             jnp.asarray(alphabet))
+    task, tracker = source.reset(jax.random.key(0), None, jnp.int32(0)), ol.init(ldba)
+    step_ours, step_original = jax.jit(source.step), jax.jit(ol.step)
+    word = [a, "eps", a, a, none, a, "eps", a, a, b]
+    ours, original, label = [], [], none
+    for item in word:
+        is_eps = isinstance(item, str)
+        label = label if is_eps else item
+        task, events = step_ours(jax.random.key(1), task, jnp.asarray(label), None,
+                                 jnp.asarray(is_eps), jnp.int32(0))
+        tracker, accepted = step_original(ldba, tracker, jnp.asarray(label), jnp.asarray(is_eps))
+        ours.append((bool(events.accepted), bool(events.violation)))
+        original.append((bool(accepted), bool(ol.is_violated(ldba, tracker)),
+                         int(ol.state(tracker))))
+    counted = [False, False, True, True, False, False, False, True, True, False]
+    assert [acc for acc, _ in ours] == [acc for acc, _, _ in original] == counted
+    assert [v for _, v in ours] == [v for _, v, _ in original] == [False] * 9 + [True]
+    assert [q for *_, q in original] == [0, 1, 1, 1, 0, 0, 1, 1, 1, -1]
+    assert int(tracker.visits) == 4  # DeepLTL's committed run: 2, dead at the first `none`
+    for item, is_eps in ((a, False), (None, True), (a, False)):
+        tracker, accepted = ol.step(ldba, tracker, jnp.asarray(a if item is None else item),
+                                    jnp.asarray(is_eps))
+        assert not bool(accepted)
+    assert int(tracker.visits) == 4
+
+
+def test_shipped_epsilon_edges_leave_a_deterministic_initial_part():
+    """What the fall-back relies on, on every shipped LDBA with epsilon edges (persistence):
+    they leave the start state only, the one state labels reach from it, which has no accepting
+    edge, loops on every label it reads and reads exactly the labels that begin some word of
+    the formula (so the run that never jumped dies exactly on a violation); labels never lead
+    back from an epsilon target, which has no epsilon edge."""
+    with_epsilon = [(s, i, f) for s, i, f, _ in ENTRIES if (built(s, i).epsilon >= 0).any()]
+    assert len(with_epsilon) == 9 and all(s.endswith("/per") for s, _, _ in with_epsilon)
+    for suite, index, formula in with_epsilon:
+        env, ldba = world(suite), built(suite, index)
+        start, delta = int(ldba.init), np.asarray(ldba.delta)
+        epsilon = np.asarray(ldba.epsilon)[:, 0]
+        assert np.flatnonzero(epsilon >= 0).tolist() == [start]
+        assert set(delta[start].tolist()) <= {start, -1}
+        assert not np.asarray(ldba.accepting)[start].any()
+        targets = np.flatnonzero(np.asarray(ldba.closure)[epsilon[start]])
+        assert (delta[targets] != start).all() and (epsilon[targets] < 0).all()
+        for symbol, row in enumerate(np.asarray(env.alphabet)):
+            first = " & ".join(p if v else f"!{p}" for p, v in zip(env.propositions, row))
+            text = f"({formula}) & {_allowed(env.propositions, env.alphabet)} & {first}"
+            assert (delta[start, symbol] >= 0) == (not spot.translate(text).is_empty())
 
 
 # --------------------------------------------------------------------------------------------
