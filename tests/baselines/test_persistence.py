@@ -38,7 +38,7 @@ class StayWorld(TinyWorld):
 def _move_toward(target: jax.Array, agent: jax.Array, n: int) -> jax.Array:
     """Action (0 up, 1 down, 2 left, 3 right, 4 stay) of one step toward flat cell `target` on
     an n x n torus; stay where the agent is on it."""
-    wrap = lambda d: (d + n // 2) % n - n // 2  # noqa: E731
+    wrap = lambda d: (d + n // 2) % n - n // 2
     di, dj = wrap(target // n - agent // n), wrap(target % n - agent % n)
     return jnp.where(di < 0, 0, jnp.where(di > 0, 1, jnp.where(dj < 0, 2, jnp.where(dj > 0, 3, STAY))))
 

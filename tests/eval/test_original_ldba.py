@@ -60,11 +60,11 @@ def built(suite: str, index: int) -> ol.OriginalLDBA:
 
 def spot_with_epsilon_ap(hoa: str) -> spot.twa_graph:
     """Spot reads the HOA once epsilon lines become edges labelled by a fresh AP."""
-    count = int(re.search(r"^AP: (\d+)", hoa, re.M).group(1))
-    hoa = re.sub(r"^AP: \d+", f"AP: {count + 1}", hoa, flags=re.M)
-    hoa = re.sub(r"^(AP: .*)$", rf'\1 "{EPS_AP}"', hoa, count=1, flags=re.M)
-    hoa = re.sub(r"^\[(.*)\] ", rf"[(\1) & !{count}] ", hoa, flags=re.M)
-    hoa = re.sub(r"^(\d+)$", rf"[{count}] \1", hoa, flags=re.M)
+    count = int(re.search(r"^AP: (\d+)", hoa, re.MULTILINE).group(1))
+    hoa = re.sub(r"^AP: \d+", f"AP: {count + 1}", hoa, flags=re.MULTILINE)
+    hoa = re.sub(r"^(AP: .*)$", rf'\1 "{EPS_AP}"', hoa, count=1, flags=re.MULTILINE)
+    hoa = re.sub(r"^\[(.*)\] ", rf"[(\1) & !{count}] ", hoa, flags=re.MULTILINE)
+    hoa = re.sub(r"^(\d+)$", rf"[{count}] \1", hoa, flags=re.MULTILINE)
     return spot.automaton(hoa)
 
 
@@ -152,8 +152,8 @@ def test_language_equals_formula(suite, index):
 
 def python_edges(hoa: str) -> tuple[int, list[str], dict[int, list]]:
     """Owl HOA read line by line: state -> [(python label expression or None, dst, acc)]."""
-    start = int(re.search(r"^Start: (\d+)", hoa, re.M).group(1))
-    names = re.findall(r'"([^"]*)"', re.search(r"^AP: .*$", hoa, re.M).group(0))
+    start = int(re.search(r"^Start: (\d+)", hoa, re.MULTILINE).group(1))
+    names = re.findall(r'"([^"]*)"', re.search(r"^AP: .*$", hoa, re.MULTILINE).group(0))
     edges, state = {}, None
     for line in hoa.split("--BODY--")[1].split("--END--")[0].strip().splitlines():
         if line.startswith("State:"):
