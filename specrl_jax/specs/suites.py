@@ -86,8 +86,9 @@ class SuiteInfo:
     @property
     def may_jump(self) -> bool:
         """Whether some spec's automaton has an epsilon edge (persistence), so that the
-        suite's scores depend on `INFINITE_SCORING`."""
-        return _may_jump(self.formulas, self.propositions)
+        suite's scores depend on `INFINITE_SCORING`; never for a finite (co-safe) suite, whose
+        automata are deterministic, so no formula is translated for it."""
+        return not self.is_finite and _may_jump(self.formulas, self.propositions)
 
     @property
     def horizon_factor(self) -> int:
