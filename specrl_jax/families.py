@@ -139,9 +139,9 @@ ZONE = WorldFamily(
     task_sources={"genz": "genz/zone", "deepltl": "deepltl/zone",
                   "ltl2action": "deepltl/zone", "rad": "deepltl/zone"},
     formula_encoder="zone",
-    # under `vmap` an exact layout is computed for every world at every step: 11x the world step
-    # on PointLTL0, ~1,200x on PointLTL2 (docs/fidelity.md); 512 take seconds (PointLTL2 ~40 s)
-    # on a CPU
+    # under `vmap` an exact layout is computed for every world at every step: a CPU rollout took
+    # 10x (PointLTL0) to 400x (PointLTL2) the bank's (docs/fidelity.md); 512 take seconds
+    # (PointLTL2 ~40 s) on a CPU
     map_bank={"cpu": 512, "gpu": 65536},
     reference_env="PointLTL0-v0",
 )
