@@ -506,7 +506,7 @@ def pretrain_command(args: argparse.Namespace) -> int:
         help="discard the selected cells' stored results and run them end to end again"),
     arg("--max-minutes", type=positive_float, default=None,
         help="stop cleanly after this many minutes: training checkpoints at its next chunk (10 "
-             "updates), no further cell or evaluation group starts; the same command resumes"),
+             "updates), no further cell or evaluation starts; the same command resumes"),
     *PROCESS_ARGS,
 )
 def reproduce_command(args: argparse.Namespace) -> int:

@@ -117,7 +117,7 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     params, suites, log) -> [SuiteResult]`, `load(cell, path, num_seeds)` and
     `trajectories(cell, params) -> dict` replace the defaults (tests; `trajectories=False`: none
     recorded). Past `deadline` (a `time.monotonic()` value) training stops at its next
-    checkpoint and no further evaluation group starts; the cell stays partial, to resume. In a
+    checkpoint and the evaluation does not start; the cell stays partial, to resume. In a
     job of several processes every process calls it alike and process 0 writes."""
     store = store or Store()
     train, evaluate = train or default_train, evaluate or default_evaluate
@@ -170,21 +170,18 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
         params = load(source, held[0].params_path(source), 1)
         record["training"] = {"params_from": cell.params_from}
     missing = [s for s in missing_work(cell, record) if s != "train"]
-    # one call per horizon group (one compiled evaluator each): finite, then infinite suites;
-    # the record is written after each, so an interrupted evaluation resumes at its group
-    finite = [s for s in missing if "/finite/" in s]
-    for group in (finite, [s for s in missing if s not in finite]):
-        if not group:
-            continue
+    # one call for every missing suite: one compiled evaluator serves the finite and infinite
+    # horizons (`eval.suites.evaluate_suites`), compiled once per cell instead of per horizon
+    if missing:
         if _out_of_time(deadline):
-            log(f"{cell.name}: time limit reached before evaluating {', '.join(group)}; rerun "
+            log(f"{cell.name}: time limit reached before evaluating {', '.join(missing)}; rerun "
                 "to resume")
             hosts.barrier(f"{cell.name} written")
             return record
-        log(f"{cell.name}: evaluating {', '.join(group)} ({cell.seeds} seeds x {cell.episodes} "
-            "episodes)")
+        log(f"{cell.name}: evaluating {', '.join(missing)} ({cell.seeds} seeds x "
+            f"{cell.episodes} episodes)")
         start = time.perf_counter()
-        results = evaluate(cell, params, group, log)
+        results = evaluate(cell, params, missing, log)
         if writer:
             record["versions"], record["device"] = _versions()
             store.write(cell, record)
@@ -428,7 +425,7 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
               max_minutes: float | None = None, **run_options: Any) -> dict[str, str]:
     """Run the selected cells (`grid.select(patterns)`, or `cells`); returns `{name: state}`.
     `rerun` discards what the store holds of them first, so they run end to end. After
-    `max_minutes` no cell or evaluation group starts and training stops at its next checkpoint
+    `max_minutes` no cell or evaluation starts and training stops at its next checkpoint
     (every 10 updates), so a run fits a time slot and the same command resumes it. In a job of
     several processes (`hosts.join`) the cells run in turn (`gpus` None or 1), each over every
     process's devices; process 0 writes and logs."""
@@ -553,7 +550,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="discard the selected cells' stored results and run them again")
     parser.add_argument("--max-minutes", type=float, default=None,
                         help="stop cleanly after this many minutes: training checkpoints at its "
-                             "next chunk, no further cell or evaluation group starts; the same "
+                             "next chunk, no further cell or evaluation starts; the same "
                              "command resumes (default: no limit)")
 
 
