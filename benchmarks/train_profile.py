@@ -5,7 +5,7 @@ on this device kind, `experiment.default_overrides`, and its reset bank, `WorldF
 `runs.init_seeds`); the method's phase before PPO (GCRL-LTL's primitives, LTL2Action's
 pretraining) is left out, its placeholders having the trained shapes. After a warm-up call
 (compilation timed apart) each part is timed over `--updates` updates with `block_until_ready`,
-median of `--repeats` (`--parallel-compile` compiles the three programs side by side):
+median of `--repeats` (`--parallel-compile` compiles the update and full programs side by side):
 
   rollout  `Trainer.collect`: `num_steps` env steps and policy inferences in `num_envs` envs
   update   `Trainer.learn` on one stored rollout: advantages, then epochs x minibatches of
@@ -25,8 +25,15 @@ host: a host sync; `while_loop_sources` names the `lax.while_loop`s), host callb
 `cost_analysis` flops and bytes (loop bodies counted once). A table is printed and one JSON row
 (`harness.row`) appended to `--out`.
 
+`--devices 1 2 ...` profiles the training over the first N local devices for each N, the env batch
+sharded over them as `specrl-jax train` shards it; the default env count per seed grows with N
+(weak scaling: `--num-envs`, or the family's shape, per device). It then prints each N's
+efficiency, its rate over the first count's rate scaled by N over that count, and adds a row of
+them.
+
     python benchmarks/train_profile.py --env LetterLTL0-v0 --method genz --seeds 5 --updates 5
     python benchmarks/train_profile.py --env PointLTL0Vision-v0 --env-option image_size=64 --seeds 5
+    python benchmarks/train_profile.py --env PointLTL0-v0 --seeds 5 --devices 1 2
 """
 
 from __future__ import annotations
@@ -53,7 +60,7 @@ import harness
 
 from specrl_jax import families
 from specrl_jax.baselines import runs
-from specrl_jax.baselines.ppo import make_train
+from specrl_jax.baselines.ppo import env_mesh, make_train
 from specrl_jax.benchmark import experiment
 
 METHODS = ("genz", "deepltl", "ltl2action", "gcrl", "rad")
@@ -114,13 +121,15 @@ def log(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
-def build(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
-    """(trainer, per-seed key, notes) as `specrl-jax train` builds them."""
+def build(args: argparse.Namespace, num_devices: int) -> tuple[Any, Any, dict[str, Any]]:
+    """(trainer, per-seed key, notes) as `specrl-jax train` builds them, the env batch sharded
+    over the first `num_devices` local devices, `--num-envs` (or the family's) on each."""
     platform = jax.devices()[0].platform
     world_family = experiment.family(args.env)
     overrides = experiment.default_overrides(platform, None, world_family, args.method)
+    num_envs = (args.num_envs or overrides["num_envs"]) * num_devices
     overrides.update({k: v for k, v in (
-        ("num_envs", args.num_envs), ("num_steps", args.num_steps),
+        ("num_envs", num_envs), ("num_steps", args.num_steps),
         ("num_minibatches", args.minibatches), ("update_epochs", args.epochs)) if v is not None})
     map_bank = (families.get(world_family).map_bank_size(platform) if args.map_bank is None
                 else args.map_bank)
@@ -130,8 +139,10 @@ def build(args: argparse.Namespace) -> tuple[Any, Any, dict[str, Any]]:
         args.method, args.env, overrides, map_bank or None, key_bank, args.env_option)
     experiment.warn_slow_camera(world, platform)
     notes = {"map_bank": map_bank, "setup_s": round(time.perf_counter() - start, 2),
-             "physics": getattr(getattr(world, "physics", None), "backend", None)}
-    return make_train(config, method_obj), key_train, notes
+             "physics": getattr(getattr(world, "physics", None), "backend", None),
+             "devices": num_devices}
+    mesh = env_mesh(jax.local_devices()[:num_devices])
+    return make_train(config, method_obj, mesh), key_train, notes
 
 
 def compile_parts(trainer: Any, runner: Any, seeds: int, n: int, parallel: bool
@@ -148,18 +159,7 @@ def compile_parts(trainer: Any, runner: Any, seeds: int, n: int, parallel: bool
         _, _, key_epochs = jax.random.split(runner.key, 3)
         return trainer.learn(runner.params, runner.opt_state, traj, runner.obs, key_epochs)
 
-    lowered, seconds, loops = {}, {}, {}
-    for part, fn, inputs, options in (  # tracing holds the GIL: one program at a time
-            ("rollout", runs.over_seeds(rollout, seeds), (runner,), {"donate_argnums": 0}),
-            ("update", runs.over_seeds(learn, seeds), None, {}),
-            ("full", runs.seed_batched(trainer, seeds), (runner, n, jnp.int32(1)),
-             {"static_argnums": 1, "donate_argnums": 0})):
-        start = time.perf_counter()
-        inputs = inputs or (runner, lowered["rollout"].out_info[1])
-        traced = jax.jit(fn, **options).trace(*inputs)
-        lowered[part] = traced.lower()
-        seconds[part] = time.perf_counter() - start
-        loops[part] = while_sources(traced.jaxpr.jaxpr)
+    lowered, seconds, loops, programs = {}, {}, {}, {}
 
     def compile_part(part: str) -> Any:
         start = time.perf_counter()
@@ -168,8 +168,28 @@ def compile_parts(trainer: Any, runner: Any, seeds: int, n: int, parallel: bool
         log(f"compiled the {part} program in {seconds[part]:.1f} s")
         return program
 
-    with ThreadPoolExecutor(len(lowered) if parallel else 1) as pool:
-        return dict(zip(lowered, pool.map(compile_part, lowered))), seconds, loops
+    for part, fn, inputs, options in (  # tracing holds the GIL: one program at a time
+            ("rollout", runs.over_seeds(rollout, seeds), (runner,), {"donate_argnums": 0}),
+            ("update", runs.over_seeds(learn, seeds), None, {}),
+            ("full", runs.seed_batched(trainer, seeds), (runner, n, jnp.int32(1)),
+             {"static_argnums": 1, "donate_argnums": 0})):
+        start = time.perf_counter()
+        if inputs is None:  # the stored rollout, laid out over the devices as the rollout's
+            programs["rollout"] = compile_part("rollout")
+            traj = jax.tree.map(lambda info, sharding: jax.ShapeDtypeStruct(
+                info.shape, info.dtype, sharding=sharding), lowered["rollout"].out_info[1],
+                programs["rollout"].output_shardings[1])
+            inputs = (runner, traj)
+            start = time.perf_counter()
+        traced = jax.jit(fn, **options).trace(*inputs)
+        lowered[part] = traced.lower()
+        seconds[part] = seconds.get(part, 0.0) + time.perf_counter() - start
+        loops[part] = while_sources(traced.jaxpr.jaxpr)
+
+    rest = [part for part in lowered if part not in programs]
+    with ThreadPoolExecutor(len(rest) if parallel else 1) as pool:
+        programs.update(zip(rest, pool.map(compile_part, rest)))
+    return {part: programs[part] for part in lowered}, seconds, loops
 
 
 def while_sources(jaxpr: Any, found: collections.Counter | None = None) -> dict[str, int]:
@@ -236,9 +256,9 @@ def host_work(metrics: Any, runner: Any, repeats: int) -> dict[str, float]:
     return host
 
 
-def profile(args: argparse.Namespace) -> dict[str, Any]:
-    """The profile's JSON fields for `args`."""
-    trainer, key, notes = build(args)
+def profile(args: argparse.Namespace, num_devices: int = 1) -> dict[str, Any]:
+    """The profile's JSON fields for `args` over the first `num_devices` local devices."""
+    trainer, key, notes = build(args, num_devices)
     cfg, seeds, n = trainer.config, args.seeds, args.updates
     start = time.perf_counter()
     runner = jax.block_until_ready(runs.init_seeds(trainer, key, seeds))
@@ -335,7 +355,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--method", default="genz", choices=METHODS)
     parser.add_argument("--seeds", type=int, default=1, help="trainings side by side (vmap)")
     parser.add_argument("--num-envs", type=int, default=None,
-                        help="envs per seed (default: the family's shape on this device kind)")
+                        help="envs per seed and device (default: the family's shape on this "
+                             "device kind)")
     parser.add_argument("--num-steps", type=int, default=None, help="rollout steps per update")
     parser.add_argument("--minibatches", type=int, default=None, help="minibatches per epoch")
     parser.add_argument("--epochs", type=int, default=None, help="epochs per update (at most)")
@@ -347,28 +368,56 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--env-option", type=_option, action="append", default=[],
                         metavar="KEY=VALUE", help="an override of the world, e.g. image_size=64")
     parser.add_argument("--parallel-compile", action="store_true",
-                        help="compile the three programs side by side (each one's compile time "
-                             "then shares the CPU with the others')")
+                        help="compile the update and full programs side by side (each one's "
+                             "compile time then shares the CPU with the other's)")
+    parser.add_argument("--devices", type=int, nargs="+", default=[1], metavar="N",
+                        help="profile over the first N local devices, for each N (weak "
+                             "scaling: N times --num-envs envs per seed)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=None, help="append the JSON row to this file")
     args = parser.parse_args(argv)
     sizes = [v for v in (args.seeds, args.num_envs, args.num_steps, args.minibatches, args.epochs,
-                         args.updates, args.repeats) if v is not None]
+                         args.updates, args.repeats, *args.devices) if v is not None]
     if min(sizes) < 1 or (args.map_bank or 0) < 0:
         parser.error("sizes must be positive (--map-bank >= 0)")
+    if max(args.devices) > jax.local_device_count():
+        parser.error(f"--devices {max(args.devices)}: this process has "
+                     f"{jax.local_device_count()} local device(s) ({jax.devices()[0].platform})")
     args.env_option = dict(args.env_option)
     return args
 
 
+def efficiencies(rates: dict[int, float]) -> dict[int, float]:
+    """Weak-scaling efficiency per device count: its rate over the first count's rate scaled by
+    the device ratio (1.0: perfect)."""
+    first = min(rates)
+    return {n: rate / (rates[first] * n / first) for n, rate in rates.items()}
+
+
 def main() -> None:
     args = parse_args()
-    result = profile(args)
-    print(table(result), flush=True)
-    figure = f"Training update split, {args.env} {args.method}, {args.seeds} seed(s)"
-    value = (f"rollout {result['rollout_s']:.4f} s + update {result['update_s']:.4f} s "
-             f"(full step {result['full_s']:.4f} s) per update, "
-             f"{result['full_steps_per_s']:,.0f} env-steps/s")
-    harness.emit(harness.row(figure, value, args.seeds * result["num_envs"], **result), args.out)
+    rates = {}
+    for num_devices in args.devices:
+        result = profile(args, num_devices)
+        print(table(result), flush=True)
+        on = f", {num_devices} devices" if len(args.devices) > 1 or num_devices > 1 else ""
+        figure = f"Training update split, {args.env} {args.method}, {args.seeds} seed(s){on}"
+        value = (f"rollout {result['rollout_s']:.4f} s + update {result['update_s']:.4f} s "
+                 f"(full step {result['full_s']:.4f} s) per update, "
+                 f"{result['full_steps_per_s']:,.0f} env-steps/s")
+        harness.emit(harness.row(figure, value, args.seeds * result["num_envs"], **result),
+                     args.out)
+        rates[num_devices] = result["full_steps_per_s"]
+    if len(rates) > 1:
+        scaling = efficiencies(rates)
+        print("devices  env-steps/s  efficiency")
+        for n, rate in rates.items():
+            print(f"{n:7}  {rate:11,.0f}  {scaling[n]:10.2f}")
+        value = ", ".join(f"{n}: {rate:,.0f} env-steps/s (efficiency {scaling[n]:.2f})"
+                          for n, rate in rates.items())
+        harness.emit(harness.row(f"Training weak scaling, {args.env} {args.method}, "
+                                 f"{args.seeds} seed(s)", value, None,
+                                 rates=rates, efficiency=scaling), args.out)
 
 
 if __name__ == "__main__":

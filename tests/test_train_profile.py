@@ -1,9 +1,11 @@
 """benchmarks/train_profile.py runs at a tiny size on the CPU and its row adds up.
 
-One fresh process profiles GenZ-LTL on LetterLTL0-v0 (1 seed, 8 envs x 16 steps, 2 minibatches,
-1 epoch, so that every update runs the same epochs, a reset bank of 16 layouts): the row has the
-harness's keys and the profile's, every time and rate is positive and finite, and the rollout
-plus the update (timed apart) come close to the training's own full step.
+One fresh process profiles GenZ-LTL on LetterLTL0-v0 (1 seed, 2 x 4 envs x 16 steps, 2 minibatches,
+1 epoch, so that every update runs the same epochs, a reset bank of 16 layouts) with the env
+batch sharded over two forced CPU devices, as training shards it: the row has the harness's keys
+and the profile's, every time and rate is positive and finite, and the rollout plus the update
+(timed apart) come close to the training's own full step. The weak-scaling efficiency is checked
+as a function.
 """
 
 from __future__ import annotations
@@ -19,16 +21,17 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "benchmarks" / "train_profile.py"
-ARGS = ["--env", "LetterLTL0-v0", "--method", "genz", "--seeds", "1", "--num-envs", "8",
+ARGS = ["--env", "LetterLTL0-v0", "--method", "genz", "--seeds", "1", "--num-envs", "4",
         "--num-steps", "16", "--minibatches", "2", "--epochs", "1", "--updates", "1",
-        "--repeats", "2", "--map-bank", "16"]
+        "--repeats", "2", "--map-bank", "16", "--devices", "2"]
 ROW_KEYS = {"figure", "value", "device", "batch", "versions", "date", "command"}
 PARTS = ("rollout", "update", "full")
 
 
 def test_train_profile_runs_tiny_and_its_parts_add_up(tmp_path):
     out = tmp_path / "rows.json"
-    env = dict(os.environ, JAX_PLATFORMS=os.environ.get("JAX_PLATFORMS", "cpu"))
+    flags = os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
+    env = dict(os.environ, JAX_PLATFORMS=os.environ.get("JAX_PLATFORMS", "cpu"), XLA_FLAGS=flags)
     done = subprocess.run([sys.executable, str(SCRIPT), *ARGS, "--out", str(out)], check=False,
                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, f"failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
@@ -37,7 +40,7 @@ def test_train_profile_runs_tiny_and_its_parts_add_up(tmp_path):
     assert ROW_KEYS <= set(row)
     assert (row["env"], row["method"], row["seeds"], row["batch"]) == ("LetterLTL0-v0", "genz", 1, 8)
     assert (row["num_envs"], row["num_steps"], row["num_minibatches"]) == (8, 16, 2)
-    assert row["minibatch_size"] == 64 and row["map_bank"] == 16
+    assert row["minibatch_size"] == 64 and row["map_bank"] == 16 and row["devices"] == 2
     for part in PARTS:
         for key in (f"{part}_s", f"{part}_steps_per_s"):
             assert math.isfinite(row[key]) and row[key] > 0, (key, row[key])
@@ -58,3 +61,12 @@ def test_train_profile_runs_tiny_and_its_parts_add_up(tmp_path):
     assert any("ppo/train.py" in where for where in row["programs"]["update"]["while_loop_sources"])
     assert row["host_syncs_per_update_min"] >= 2
     assert row["host_per_chunk"]["checkpoint_bytes"] > 0
+
+
+def test_weak_scaling_efficiency_is_the_rate_over_the_first_count_scaled():
+    sys.path.insert(0, str(SCRIPT.parent))
+    import train_profile
+
+    scaling = train_profile.efficiencies({1: 100.0, 2: 180.0, 4: 400.0})
+    assert scaling == pytest.approx({1: 1.0, 2: 0.9, 4: 1.0})
+    assert train_profile.efficiencies({2: 100.0, 4: 150.0}) == pytest.approx({2: 1.0, 4: 0.75})
