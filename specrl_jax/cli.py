@@ -565,8 +565,9 @@ def bench_command(args: argparse.Namespace) -> int:
     report = bench.score(args.policy, worlds, args.suite, args.seeds, args.episodes,
                          backend=args.backend, horizon=args.horizon, out=args.out,
                          name=args.name, log=log)
-    for line in report.lines():
-        print(line)
+    if args.no_progress or len(report.worlds) > 1:  # else its one line is already shown
+        for line in report.lines():
+            print(line)
     print(f"wrote {report.out}/: results.json, metrics.csv, tables.md, bench.png")
     return 0
 

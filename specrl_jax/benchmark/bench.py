@@ -189,6 +189,7 @@ def score(policy: Any, worlds: Sequence[str] | None = None, suites: Sequence[str
         if suites is not None and not results and not skipped:
             skipped = "none of the given suites belongs to it"
         scores.append(WorldScore(world, tuple(results), time.perf_counter() - start, skipped))
+        log(scores[-1].line())
     # the name given, else the one the policy declares (its results' label), else its reference
     label = name or next((r.method for w in scores for r in w.results), None) or _label(policy)
     config = {"policy": policy if isinstance(policy, str) else label, "worlds": list(worlds),
@@ -197,8 +198,6 @@ def score(policy: Any, worlds: Sequence[str] | None = None, suites: Sequence[str
     report = BenchReport(label, backend, tuple(scores), config)
     if out is not None:
         report = dataclasses.replace(report, out=write_report(report, out))
-    for line in report.lines():
-        log(line)
     return report
 
 

@@ -162,6 +162,12 @@ def test_bench_writes_a_report_beside_the_baselines(monkeypatch, tmp_path, capsy
     assert "| subgoal-greedy |" in table and "GenZ-LTL (reproduction)" in table
     assert "results store LetterLTL0-v0/genz" in table and specs.suite_version(IND) in table
     assert (out / "bench.png").stat().st_size > 5_000
+    # with progress lines, the world's summary line is shown once (as it finishes), not again
+    assert cli.main(["bench", "--policy", "letter_subgoal_agent:make_agent", "--worlds", "letter",
+                     "--suite", IND, "--suite", "letter/infinite/rsp", "--seeds", "2",
+                     "--episodes", "2", "--horizon", "10", "--out", str(tmp_path / "again")]) == 0
+    shown = capsys.readouterr()
+    assert (shown.out + shown.err).count("letter: eta_s") == 1
 
 
 def _jax_policy(params, obs, task_state, key):
