@@ -58,7 +58,7 @@ def test_gcrl_learns_a_tiny_world_and_its_agent_follows_specs():
     updates = 80  # 60 left '!a U b' at 0.5 success on a 2-core CPU
     cfg = gcrl.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * updates,
                           update_epochs=4, num_minibatches=2)
-    runner, rows = train_rows(gcrl, method, cfg, updates)
+    runner, rows = train_rows(gcrl, method, cfg, updates, optimised=False)  # level 0: 46 -> 38 s
     first, last = early_late(rows)
     assert first < 0.4 and last > 0.6, (first, last)
 

@@ -40,7 +40,8 @@ def test_deepltl_learns_reach_avoid_on_a_tiny_letter_world_through_the_task_loop
     method = deepltl.make_method(world, params)  # curriculum stage 0: reach one, avoid the other
     cfg = deepltl.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * 75,
                              update_epochs=4, num_minibatches=2)
-    first, last = _learning(deepltl, method, cfg, 75)  # stage 0 holds until its 0.95 is met
+    # stage 0 holds until its 0.95 is met; at the suite's level 0 (43 -> 31 s on a 2-core CPU)
+    first, last = _learning(deepltl, method, cfg, 75, optimised=False)
     assert first < 0.4 and last > 0.6, (first, last)
 
 

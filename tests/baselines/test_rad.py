@@ -33,7 +33,7 @@ def test_rad_learns_a_tiny_letter_world_and_its_policy_solves_the_compiled_specs
     updates = 50
     cfg = rad.ppo_config(num_envs=16, num_steps=24, total_timesteps=16 * 24 * updates,
                          update_epochs=4, num_minibatches=2, lr=1e-3)
-    runner, rows = train_rows(rad, method, cfg, updates)
+    runner, rows = train_rows(rad, method, cfg, updates, optimised=False)  # level 0: 32 -> 23 s
     first, last = early_late(rows)
     assert first < 0.35 and last > 0.5, (first, last)
 
