@@ -31,33 +31,18 @@ import specrl_jax  # noqa: F401  (switches JAX's cache on, in the directory chos
 # The heaviest test files first. Under `--dist loadfile` a file runs whole on one worker, and the
 # workers take the files in the order of the collection (`--no-loadscope-reorder` in
 # pyproject.toml; xdist's own order is by number of tests, which can leave a long file of few
-# tests to the end while the other worker idles). Longest first keeps the two workers within about
-# one small file of each other. Seconds per file, each test file alone in one process
-# (`-n 0 --durations=0`, fresh compile cache, 2-core CPU, 2026-11-30); files not listed take
-# under 10 s and keep their collection order after these.
+# tests to the end while the other worker idles). Seconds per file of those over 50 s, each alone
+# in one process (`-n 0 --durations=0`, fresh compile cache, 2-core CPU, 2026-11-30); the other
+# files follow in their collection order.
 FILE_SECONDS = {
     "envs/test_zone_physics.py": 242, "envs/test_arm_env.py": 200, "envs/test_arm_physics.py": 183,
     "envs/test_arm_solver_gating.py": 130, "baselines/test_train_any_world.py": 126,
-    "baselines/test_methods.py": 83, "envs/test_zone_camera.py": 99, "baselines/test_gcrl.py": 75,
-    "baselines/test_ltl2action_curriculum.py": 85, "envs/test_zone_gym.py": 85,
+    "envs/test_zone_camera.py": 99, "baselines/test_ltl2action_curriculum.py": 85,
+    "envs/test_zone_gym.py": 85, "baselines/test_methods.py": 83, "baselines/test_gcrl.py": 75,
     "test_benchmark_scripts.py": 66, "baselines/test_ltl2action.py": 64,
     "benchmark/test_bench.py": 59, "test_cli.py": 57, "envs/test_zone_world.py": 56,
     "test_brax.py": 53, "baselines/test_ppo.py": 52, "baselines/test_rad_pretrain.py": 52,
     "baselines/test_rad_table.py": 51, "baselines/test_rad_curriculum.py": 51,
-    "baselines/test_hosts.py": 49, "envs/test_letter_maps.py": 48, "envs/test_multi_batch.py": 47,
-    "automata/test_automata_semantics.py": 47, "baselines/test_persistence.py": 44,
-    "baselines/test_scoring.py": 41, "envs/test_zone_backends.py": 41,
-    "envs/test_multi_zone.py": 40, "envs/test_zone_env.py": 39, "envs/test_batch_reset.py": 39,
-    "baselines/test_rad.py": 24, "test_examples.py": 32, "envs/test_bad_input.py": 32,
-    "eval/test_long_horizon.py": 31, "baselines/test_rad_encoder.py": 30,
-    "baselines/test_ltl2action_pretrain.py": 30, "baselines/test_sharded.py": 29,
-    "eval/test_evaluate.py": 28, "envs/test_zone_motion.py": 27, "test_train_profile.py": 27,
-    "envs/test_arm_ik.py": 24, "test_coordinator.py": 21, "test_tasks.py": 20,
-    "baselines/test_cli_bad_input.py": 17, "envs/test_arm_geometry.py": 16,
-    "benchmark/test_report.py": 16, "test_extension.py": 14, "eval/test_original_ldba.py": 13,
-    "automata/test_automata_search.py": 12, "baselines/test_gcrl_primitives.py": 12,
-    "envs/test_letter.py": 12, "automata/test_automata_stepping.py": 12,
-    "specs/test_spec_sequences.py": 12, "envs/test_multi_gym.py": 11, "eval/test_planner.py": 11,
 }
 
 
@@ -66,9 +51,6 @@ def pytest_collection_modifyitems(config, items):
     files = {}  # test file -> (minus its seconds, its first position): a stable sort by file
     for index, item in enumerate(items):
         if item.path not in files:
-            try:
-                name = item.path.relative_to(here).as_posix()
-            except ValueError:
-                name = None
+            name = item.path.relative_to(here).as_posix() if item.path.is_relative_to(here) else ""
             files[item.path] = (-FILE_SECONDS.get(name, 0), index)
     items.sort(key=lambda item: files[item.path])  # a file's tests keep their order

@@ -63,8 +63,8 @@ def test_train_profile_runs_tiny_and_its_parts_add_up(tmp_path):
     assert row["host_per_chunk"]["checkpoint_bytes"] > 0
 
 
-def test_weak_scaling_efficiency_is_the_rate_over_the_first_count_scaled():
-    sys.path.insert(0, str(SCRIPT.parent))
+def test_weak_scaling_efficiency_is_the_rate_over_the_first_count_scaled(monkeypatch):
+    monkeypatch.syspath_prepend(str(SCRIPT.parent))
     import train_profile
 
     scaling = train_profile.efficiencies({1: 100.0, 2: 180.0, 4: 400.0})
