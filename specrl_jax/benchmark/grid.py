@@ -212,7 +212,8 @@ TRAIN_RATES: dict[tuple[str, str], tuple[float, str]] = {
     ("CarLTL0-v0", "genz"): (181_242, "H200, 5 x 15M, MuJoCo Warp"),
     ("PandaLTLReach0Joints-v0", "genz"): (149_359, "H200, 5 x 4M, 4,096 x 16 per seed"),
     ("PandaLTLReach0Joints-v0", "deepltl"): (79_113, "H200, 5 x 15M, compile and a resume included"),
-    ("PandaLTLReach0Joints-v0", "rad"): (122_000, "H200, steady rate of a 5 x 15M run"),
+    ("PandaLTLReach0Joints-v0", "gcrl"): (178_630, "H200, 5 x 15M, compile included"),
+    ("PandaLTLReach0Joints-v0", "rad"): (113_980, "H200, 5 x 15M, compile and a resume included"),
     ("PointLTL0Vision-v0", "genz"): (61_396, "H100, 1 x 6M at 64 x 64, compile included"),
 }
 #: env ID (without variant suffix) -> measured auto-reset env-steps/s on one GPU, best batch
