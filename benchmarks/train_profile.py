@@ -67,12 +67,16 @@ METHODS = ("genz", "deepltl", "ltl2action", "gcrl", "rad")
 # an HLO instruction's op: the first `name(` after `=` (shapes hold no such token)
 _OP = re.compile(r"=\s.*?\s([a-z][\w\-]*)\(")
 _TARGET = re.compile(r'custom_call_target="([^"]+)"')
+_SOURCE = re.compile(r'source_file="([^"]+)" source_line=(\d+)')
+#: cross-device operations (and their asynchronous starts) in the partitioned program
+COLLECTIVES = ("all-gather", "all-to-all", "all-reduce", "collective-permute", "reduce-scatter")
 
 
 def program_stats(compiled: Any) -> dict[str, Any]:
     """Size and structure of a compiled program (its HLO text after optimisation)."""
     ops: collections.Counter = collections.Counter()
     targets: collections.Counter = collections.Counter()
+    collective_sources: collections.Counter = collections.Counter()
     whiles = known = 0
     for line in compiled.as_text().splitlines():
         match = _OP.search(line)
@@ -86,6 +90,11 @@ def program_stats(compiled: Any) -> dict[str, Any]:
         elif op == "custom-call":
             target = _TARGET.search(line)
             targets[target.group(1) if target else "?"] += 1
+        elif op.removesuffix("-start") in COLLECTIVES:
+            where = _SOURCE.search(line)
+            where = (re.sub(r"^.*/(site-packages|specrl_jax)/", r"\1/", where.group(1))
+                     + f":{where.group(2)}") if where else "?"
+            collective_sources[f"{op.removesuffix('-start')} {where}"] += 1
     callbacks = sum(n for t, n in targets.items() if "callback" in t.lower())
     stats = {
         "hlo_instructions": sum(ops.values()),
@@ -95,6 +104,9 @@ def program_stats(compiled: Any) -> dict[str, Any]:
         "while_loops": whiles,
         "while_loops_unknown_trip_count": whiles - known,
         "conditionals": ops["conditional"],
+        "collectives": {op: ops[op] + ops[f"{op}-start"] for op in COLLECTIVES
+                        if ops[op] + ops[f"{op}-start"]},
+        "collective_sources": dict(collective_sources.most_common(12)),
         "host_transfers": callbacks + sum(ops[o] for o in ("outfeed", "infeed", "send", "recv")),
         "top_ops": dict(ops.most_common(8)),
     }

@@ -4,7 +4,8 @@ One fresh process profiles GenZ-LTL on LetterLTL0-v0 (1 seed, 2 x 4 envs x 16 st
 1 epoch, so that every update runs the same epochs, a reset bank of 16 layouts) with the env
 batch sharded over two forced CPU devices, as training shards it: the row has the harness's keys
 and the profile's, every time and rate is positive and finite, and the rollout plus the update
-(timed apart) come close to the training's own full step. The weak-scaling efficiency is checked
+(timed apart) come close to the training's own full step, and both programs are data parallel
+(no gathers in the rollout, the gradients summed across devices). The weak-scaling efficiency is checked
 as a function.
 """
 
@@ -61,6 +62,11 @@ def test_train_profile_runs_tiny_and_its_parts_add_up(tmp_path):
     assert any("ppo/train.py" in where for where in row["programs"]["update"]["while_loop_sources"])
     assert row["host_syncs_per_update_min"] >= 2
     assert row["host_per_chunk"]["checkpoint_bytes"] > 0
+    # data parallel over the two devices: the rollout steps each device's envs where they are, and
+    # the update sums the minibatch gradients over the devices (an all-reduce) rather than
+    # gathering the minibatches so that every device computes the whole update
+    assert row["programs"]["rollout"]["collectives"] == {}
+    assert row["programs"]["update"]["collectives"].get("all-reduce", 0) >= 1
 
 
 def test_weak_scaling_efficiency_is_the_rate_over_the_first_count_scaled(monkeypatch):

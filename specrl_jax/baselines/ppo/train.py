@@ -156,12 +156,15 @@ class Trainer:
             optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr, eps=config.adam_eps)
         )
 
-    def constrain(self, tree: Any) -> Any:
-        """Keep the env axis (axis 0) sharded over the mesh."""
+    def constrain(self, tree: Any, axis: int = 0) -> Any:
+        """Shard axis `axis` of every leaf over the mesh: the env axis of the rollout's carry,
+        the sample axis of the minibatches (else XLA gathers the shuffled batch onto every device
+        and each computes the whole update). A leaf whose axis does not divide is left as is."""
         if self.mesh is None:
             return tree
-        sharding = NamedSharding(self.mesh, PartitionSpec("env"))
-        return jax.tree.map(lambda x: jax.lax.with_sharding_constraint(x, sharding), tree)
+        sharding = NamedSharding(self.mesh, PartitionSpec(*(None,) * axis, "env"))
+        return jax.tree.map(lambda x: x if x.shape[axis] % self.mesh.size
+                            else jax.lax.with_sharding_constraint(x, sharding), tree)
 
     def apply(self, params: Any, obs: Any):
         return self.method.network.apply(params, obs)
@@ -242,6 +245,7 @@ class Trainer:
             shuffled = jax.tree.map(
                 lambda x: x[order].reshape(cfg.num_minibatches, cfg.minibatch_size, *x.shape[1:]), batch
             )
+            shuffled = self.constrain(shuffled, axis=1)  # data-parallel minibatch steps
             (params, opt_state), metrics = jax.lax.scan(minibatch_step, (params, opt_state), shuffled)
             return params, opt_state, jax.tree.map(jnp.mean, metrics)
 
