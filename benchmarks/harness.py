@@ -105,10 +105,12 @@ def repeat_difference(rollout: Callable, key: jax.Array, state: Any) -> dict[str
             "same_checksum": float(total_a) == float(total_b)}
 
 
-def device_name() -> str:
+def device_name(using: int = 1) -> str:
+    """The device kind, with how many of this machine's devices a figure used."""
     device = jax.devices()[0]
     name = device.device_kind if device.platform != "cpu" else f"{os.cpu_count()}-core CPU"
-    return name + (f" ({jax.device_count()} devices, using 1)" if jax.device_count() > 1 else "")
+    return name + (f" ({jax.device_count()} devices, using {using})" if jax.device_count() > 1
+                   else "")
 
 
 def versions() -> dict[str, str]:
@@ -123,11 +125,12 @@ def versions() -> dict[str, str]:
 
 
 def row(figure: str, value: Any, batch: int | None = None, **extra: Any) -> dict[str, Any]:
-    """One result row: the figure, its value, and where, when and how it was measured."""
+    """One result row: the figure, its value, and where, when and how it was measured (on
+    `extra["devices"]` devices, else one)."""
     return {
         "figure": figure,
         "value": value,
-        "device": device_name(),
+        "device": device_name(extra.get("devices", 1)),
         "batch": batch,
         "versions": versions(),
         "date": datetime.datetime.now(datetime.timezone.utc).date().isoformat(),

@@ -29,17 +29,19 @@ host: a host sync; `while_loop_sources` names the `lax.while_loop`s), host callb
 sharded over them as `specrl-jax train` shards it; the default env count per seed grows with N
 (weak scaling: `--num-envs`, or the family's shape, per device). It then prints each N's
 efficiency, its rate over the first count's rate scaled by N over that count, and adds a row of
-them.
+them; `--plot PNG` draws them (rate and seconds per update against N), `--plot-rows JSONL --plot
+PNG` draws them from the rows of an earlier `--out`.
 
     python benchmarks/train_profile.py --env LetterLTL0-v0 --method genz --seeds 5 --updates 5
     python benchmarks/train_profile.py --env PointLTL0Vision-v0 --env-option image_size=64 --seeds 5
-    python benchmarks/train_profile.py --env PointLTL0-v0 --seeds 5 --devices 1 2
+    python benchmarks/train_profile.py --env PointLTL0-v0 --seeds 5 --devices 1 2 --plot s.png
 """
 
 from __future__ import annotations
 
 import argparse
 import collections
+import json
 import os
 import re
 import statistics
@@ -387,7 +389,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                              "scaling: N times --num-envs envs per seed)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=None, help="append the JSON row to this file")
+    parser.add_argument("--plot", default=None, metavar="PNG",
+                        help="with several --devices: draw the weak scaling to this file")
+    parser.add_argument("--plot-rows", default=None, metavar="JSONL",
+                        help="only draw --plot from the profile rows of this file (a former "
+                             "--out)")
     args = parser.parse_args(argv)
+    if args.plot_rows and not args.plot:
+        parser.error("--plot-rows draws to --plot PNG; give both")
     sizes = [v for v in (args.seeds, args.num_envs, args.num_steps, args.minibatches, args.epochs,
                          args.updates, args.repeats, *args.devices) if v is not None]
     if min(sizes) < 1 or (args.map_bank or 0) < 0:
@@ -406,11 +415,62 @@ def efficiencies(rates: dict[int, float]) -> dict[int, float]:
     return {n: rate / (rates[first] * n / first) for n, rate in rates.items()}
 
 
+def plot_scaling(rows: list[dict[str, Any]], path: str) -> None:
+    """Weak scaling from profile rows (those of several device counts, per env and method): the
+    training rate against the device count beside the ideal line, and each count's seconds per
+    update split into rollout and PPO update, which shows what limits it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs_by_env: dict[str, dict[int, dict[str, Any]]] = collections.defaultdict(dict)
+    for r in rows:
+        if "rollout_s" in r and "devices" in r:
+            runs_by_env[f"{r['env']} {r['method']}"][r["devices"]] = r
+    if not runs_by_env:
+        raise ValueError("no profile rows to plot (rows with 'rollout_s' and 'devices')")
+    fig, (ax_rate, ax_split) = plt.subplots(1, 2, figsize=(11, 4))
+    width = 0.8 / len(runs_by_env)
+    for i, (name, by_count) in enumerate(sorted(runs_by_env.items())):
+        counts = sorted(by_count)
+        rates = [by_count[n]["full_steps_per_s"] / 1e6 for n in counts]
+        scaling = efficiencies(dict(zip(counts, rates)))
+        line, = ax_rate.plot(counts, rates, "o-", label=name)
+        ax_rate.set_xticks(counts)
+        ax_rate.plot(counts, [rates[0] * n / counts[0] for n in counts], ":", color=line.get_color())
+        for n, rate in zip(counts, rates):
+            ax_rate.annotate(f"{scaling[n]:.2f}", (n, rate), textcoords="offset points",
+                             xytext=(4, -12), fontsize=8)
+        x = [j + (i - (len(runs_by_env) - 1) / 2) * width for j in range(len(counts))]
+        rollout = [by_count[n]["rollout_s"] for n in counts]
+        update = [by_count[n]["full_s"] - by_count[n]["rollout_s"] for n in counts]
+        ax_split.bar(x, rollout, width, color=line.get_color(), label=f"{name}: rollout")
+        ax_split.bar(x, update, width, bottom=rollout, color=line.get_color(), alpha=0.45,
+                     label=f"{name}: PPO update")
+        ax_split.set_xticks(range(len(counts)), [str(n) for n in counts])
+    ax_rate.set(xlabel="devices (env batch per device fixed)", ylabel="M env-steps/s",
+                title="rate (dotted: ideal; labels: efficiency)")
+    ax_split.set(xlabel="devices", ylabel="s per update",
+                 title="full update step: rollout + the rest")
+    for ax in (ax_rate, ax_split):
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def main() -> None:
     args = parse_args()
-    rates = {}
+    if args.plot_rows:
+        with open(args.plot_rows) as f:
+            plot_scaling([json.loads(line) for line in f if line.strip()], args.plot)
+        print(f"wrote {args.plot}")
+        return
+    rates, rows = {}, []
     for num_devices in args.devices:
         result = profile(args, num_devices)
+        rows.append(result)
         print(table(result), flush=True)
         on = f", {num_devices} devices" if len(args.devices) > 1 or num_devices > 1 else ""
         figure = f"Training update split, {args.env} {args.method}, {args.seeds} seed(s){on}"
@@ -428,8 +488,11 @@ def main() -> None:
         value = ", ".join(f"{n}: {rate:,.0f} env-steps/s (efficiency {scaling[n]:.2f})"
                           for n, rate in rates.items())
         harness.emit(harness.row(f"Training weak scaling, {args.env} {args.method}, "
-                                 f"{args.seeds} seed(s)", value, None,
+                                 f"{args.seeds} seed(s)", value, None, devices=max(rates),
                                  rates=rates, efficiency=scaling), args.out)
+        if args.plot:
+            plot_scaling(rows, args.plot)
+            print(f"wrote {args.plot}")
 
 
 if __name__ == "__main__":

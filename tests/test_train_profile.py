@@ -76,3 +76,17 @@ def test_weak_scaling_efficiency_is_the_rate_over_the_first_count_scaled(monkeyp
     scaling = train_profile.efficiencies({1: 100.0, 2: 180.0, 4: 400.0})
     assert scaling == pytest.approx({1: 1.0, 2: 0.9, 4: 1.0})
     assert train_profile.efficiencies({2: 100.0, 4: 150.0}) == pytest.approx({2: 1.0, 4: 0.75})
+
+
+def test_scaling_plot_draws_profile_rows_and_refuses_none(tmp_path, monkeypatch):
+    monkeypatch.syspath_prepend(str(SCRIPT.parent))
+    import train_profile
+
+    rows = [{"env": "LetterLTL0-v0", "method": "genz", "devices": n, "rollout_s": 0.07,
+             "full_s": 0.12 + 0.08 * (n - 1), "full_steps_per_s": 1.4e6 * n * (1.2 - 0.2 * n)}
+            for n in (1, 2)]
+    rows.append({"figure": "Training weak scaling", "rates": {1: 1.0, 2: 1.8}})  # not a profile
+    train_profile.plot_scaling(rows, str(tmp_path / "scaling.png"))
+    assert (tmp_path / "scaling.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(ValueError, match="no profile rows"):
+        train_profile.plot_scaling(rows[2:], str(tmp_path / "none.png"))

@@ -199,7 +199,8 @@ def grid_table(store: Store) -> list[str]:
 
 
 def measurement_sections(path: str | Path = MEASUREMENTS) -> list[str]:
-    """One table per `section` of the measurements file, sections in order of appearance."""
+    """One table per `section` of the measurements file, sections in order of appearance, each
+    followed by the images its rows name under `plot` (a path from the results page)."""
     path = Path(path)
     if not path.exists():
         return []
@@ -219,6 +220,9 @@ def measurement_sections(path: str | Path = MEASUREMENTS) -> list[str]:
                 cells.append(f"`{value}`" if key == "command" and value else value)
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
+        for row in rows:
+            if row.get("plot"):
+                lines += [f"![{row.get('figure', '')}]({row['plot']})", ""]
     return lines
 
 

@@ -19,6 +19,7 @@ MEASUREMENTS = """
   date: '2026-11-22'
   command: python benchmarks/env_throughput.py
   source: ''
+  plot: figures/letter_throughput.png
 - section: Test suite
   figure: whole suite
   value: 618 passed
@@ -84,6 +85,8 @@ def test_report_renders_a_tiny_store_deterministically(tmp_path):
     assert "### Worlds" in page and "### Test suite" in page
     assert ("| LetterLTL0-v0 \\| map-bank resets | 777M env-steps/s | H100 | 1,048,576 | "
             "2026-11-22 | `python benchmarks/env_throughput.py` |") in page
+    worlds = page[page.index("### Worlds"):page.index("### Test suite")]
+    assert "![LetterLTL0-v0 | map-bank resets](figures/letter_throughput.png)" in worlds
     assert "](figures/robot_dynamics_observation.png)" in page
     assert "trajectories_CarLTL0-v0.png" in names  # the Car cell recorded episodes
     assert "](figures/trajectories_CarLTL0-v0.png)" in page
