@@ -28,9 +28,17 @@ def batched_sampler(config: ZoneConfig):
     return jax.jit(jax.vmap(lambda k: sample_positions(k, config, parallel)))
 
 
+#: layouts per call of `batched_sampler`: under `vmap` its restart loop runs until the slowest
+#: layout of the batch is placed, so small batches waste fewer rounds (each layout depends on its
+#: key alone: the same layouts either way)
+SAMPLE_CHUNK = 8
+
+
 def sample_many(config: ZoneConfig, num: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    xy, ok = batched_sampler(config)(jax.random.split(jax.random.key(seed), num))
-    return np.asarray(xy), np.asarray(ok)
+    keys, sample = jax.random.split(jax.random.key(seed), num), batched_sampler(config)
+    parts = [sample(keys[i:i + SAMPLE_CHUNK]) for i in range(0, num, SAMPLE_CHUNK)]
+    return (np.concatenate([np.asarray(xy) for xy, _ in parts]),
+            np.concatenate([np.asarray(ok) for _, ok in parts]))
 
 
 def reference_layout(config: ZoneConfig, rng: random.Random) -> tuple[np.ndarray, int]:
