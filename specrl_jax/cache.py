@@ -2,7 +2,7 @@
 
 `SPECRL_JAX_CACHE_DIR` names the root (default `~/.cache/specrl_jax`): JAX's persistent
 compilation cache lives in `<root>/jax`, compiled automata in `<root>/automata`, reset banks in
-`<root>/banks`. Set it to `off`
+`<root>/banks`, the methods' set-up tables (RAD's) in `<root>/tables`. Set it to `off`
 (or `0`, `false`, `no`, `none`) to use neither. Importing `specrl_jax` switches JAX's cache on
 (`enable_jax_cache`), so a new process reuses the compiled resets and steps of earlier ones,
 unless JAX's cache directory was configured already (`JAX_COMPILATION_CACHE_DIR` or
@@ -54,6 +54,27 @@ def banks_dir() -> str | None:
     """Directory of the reset-bank cache (`envs.bank_cache`), or None (off)."""
     base = root()
     return None if base is None else os.path.join(base, "banks")
+
+
+def tables_dir() -> str | None:
+    """Directory of the methods' cached set-up tables (RAD's DFA banks and embeddings), or None."""
+    base = root()
+    return None if base is None else os.path.join(base, "tables")
+
+
+def digest(payload: dict, source_folders: tuple[str, ...] = ()) -> str:
+    """Hex digest of `payload` (JSON-serialisable) and every `*.py` file of `source_folders`: a
+    cache entry's name, changed by any input or source change."""
+    import hashlib
+    import json
+    import pathlib
+
+    sources = hashlib.sha256()
+    for folder in source_folders:
+        for path in sorted(pathlib.Path(folder).glob("*.py")):
+            sources.update(path.read_bytes())
+    text = json.dumps({**payload, "sources": sources.hexdigest()}, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 def load_arrays(directory: str | None, name: str) -> dict[str, np.ndarray] | None:

@@ -10,9 +10,7 @@ and an unreadable entry is sampled again.
 
 from __future__ import annotations
 
-import hashlib
 import inspect
-import json
 import pathlib
 from typing import Any
 
@@ -26,17 +24,14 @@ def bank_key(world: Any, key: jax.Array, num_maps: int) -> str:
     """Hex digest naming the bank of `world.with_map_bank(key, ..., num_maps)`; any change of
     config, size, key, JAX, platform or a source file of the world's package changes it."""
     folder = pathlib.Path(inspect.getfile(type(world))).parent
-    sources = hashlib.sha256(b"".join(p.read_bytes() for p in sorted(folder.glob("*.py"))))
-    payload = {
+    return cache.digest({
         "world": f"{type(world).__module__}.{type(world).__qualname__}",
         "config": repr(world.config),
         "num_maps": num_maps,
         "key": np.asarray(jax.random.key_data(key)).tobytes().hex(),
         "jax": jax.__version__,
         "platform": jax.default_backend(),
-        "sources": sources.hexdigest(),
-    }
-    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+    }, (str(folder),))
 
 
 def with_map_bank(world: Any, params: Any, key: jax.Array, num_maps: int) -> Any:

@@ -44,6 +44,7 @@ from specrl_jax.baselines.encoders import check_kinds, obs_parts
 from specrl_jax.baselines.heads import embedding_actor_critic
 from specrl_jax.baselines.ppo.networks import PolicyOutput
 from specrl_jax.baselines.ppo.train import Method, PPOConfig, world_config
+from specrl_jax.baselines.rad import disk as rad_disk
 from specrl_jax.baselines.rad import pretrain as rad_pretrain
 from specrl_jax.baselines.rad import table as rad_table
 from specrl_jax.baselines.rad.encoder import (
@@ -58,7 +59,7 @@ from specrl_jax.baselines.task_sources import curriculum_of, families_with_curri
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.specs import CurriculumSampler
 from specrl_jax.tasks import TaskEnv
-from specrl_jax.tasks.dfa_source import CurriculumDFASource, DFASource, curriculum_dfas
+from specrl_jax.tasks.dfa_source import CurriculumDFASource, DFASource
 
 DEFAULT_BANK_SIZE = 4096
 #: draws of each sampled curriculum stage (before reach-stay draws are left out)
@@ -121,7 +122,8 @@ def bank_embedder(encoder_params: Any, graphs: GraphBank, bank: DFABank, num_lay
                   max_table_rows: int = rad_table.MAX_TABLE_ROWS
                   ) -> Callable[[jax.Array, jax.Array], jax.Array]:
     """`embedder`'s `embed`, read from a table of every reachable state tuple of `bank` encoded
-    once (`rad_table`, the encoder batched and packed), so no step runs the encoder. Where the
+    once (`rad_table`, the encoder batched and packed; read from the disk cache, `rad.disk`), so no
+    step runs the encoder. Where the
     table would exceed `max_table_rows` rows, `embed` itself with a warning (0: always).
     """
     embed = embedder(encoder_params, graphs, bank, num_layers)
@@ -134,7 +136,8 @@ def bank_embedder(encoder_params: Any, graphs: GraphBank, bank: DFABank, num_lay
         return encoder.apply(encoder_params, graph)
 
     try:
-        table = rad_table.build_table(bank, encode, max_table_rows)
+        table = rad_disk.embedding_table(encoder_params, bank, num_layers, max_table_rows,
+                                         lambda: rad_table.build_table(bank, encode, max_table_rows))
     except ValueError as err:
         warnings.warn(f"RAD-Embeddings: {err}; running the encoder every step instead",
                       stacklevel=2)
@@ -204,13 +207,13 @@ def curriculum_bank(propositions: Sequence[str], alphabet: np.ndarray, family: s
                     ) -> tuple[CurriculumSampler, list[int], DFABank, GraphBank]:
     """`family`'s DeepLTL curriculum as DFAs (`dfa_source.curriculum_dfas`, `per_stage` draws of
     a sampled stage): its sampler, the rows per stage, the bank and its graphs (built once per
-    process, as `training_bank`)."""
+    process, as `training_bank`; the DFAs read from the disk cache, `rad.disk`)."""
     alphabet = np.asarray(alphabet, bool)
     key = ("curriculum", family, tuple(propositions), alphabet.tobytes(), alphabet.shape,
            per_stage, seed)
     if key not in _BANKS:
         sampler = CurriculumSampler(specs.curriculum(curriculum_of("rad", family)), len(propositions))
-        tasks = curriculum_dfas(sampler, propositions, alphabet, per_stage, seed)
+        tasks = rad_disk.curriculum_dfas(sampler, propositions, alphabet, per_stage, seed)
         _BANKS[key] = (sampler, tasks.stage_sizes, tasks.bank, build_graphs(tasks.bank))
     return _BANKS[key]
 
