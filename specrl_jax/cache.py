@@ -38,28 +38,29 @@ def root() -> str | None:
     return os.path.expanduser(value)
 
 
+def _below_root(name: str) -> str | None:
+    base = root()
+    return None if base is None else os.path.join(base, name)
+
+
 def jax_dir() -> str | None:
     """Directory of JAX's persistent compilation cache, or None (off)."""
-    base = root()
-    return None if base is None else os.path.join(base, "jax")
+    return _below_root("jax")
 
 
 def automata_dir() -> str | None:
     """Directory of the compiled-automata cache, or None (off)."""
-    base = root()
-    return None if base is None else os.path.join(base, "automata")
+    return _below_root("automata")
 
 
 def banks_dir() -> str | None:
     """Directory of the reset-bank cache (`envs.bank_cache`), or None (off)."""
-    base = root()
-    return None if base is None else os.path.join(base, "banks")
+    return _below_root("banks")
 
 
 def tables_dir() -> str | None:
     """Directory of the methods' cached set-up tables (RAD's DFA banks and embeddings), or None."""
-    base = root()
-    return None if base is None else os.path.join(base, "tables")
+    return _below_root("tables")
 
 
 def digest(payload: dict, source_folders: tuple[str, ...] = ()) -> str:
