@@ -28,6 +28,15 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import specrl_jax  # noqa: F401  (switches JAX's cache on, in the directory chosen above)
 
+# MuJoCo Warp's CPU kernels (the Warp backend's tests) at clang's -O0: their first compilation a
+# third shorter (the nested-batch test 25 -> 17 s with a cold kernel cache), the same tolerances met
+try:
+    import warp
+
+    warp.config.optimization_level = 0
+except ImportError:
+    pass
+
 # The heaviest test files first. Under `--dist loadfile` a file runs whole on one worker, and the
 # workers take the files in the order of the collection (`--no-loadscope-reorder` in
 # pyproject.toml; xdist's own order is by number of tests, which can leave a long file of few
