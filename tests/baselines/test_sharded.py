@@ -1,5 +1,6 @@
 """Training and evaluation over every device: the env batch sharded over a `jax.sharding.Mesh`
-on forced CPU devices, the same seed giving the same result on 1 or 2 devices, clear errors for
+on forced CPU devices, the same seed giving the same result on 1 or 2 devices, MuJoCo Warp stepped
+on each device's own worlds, clear errors for
 a batch that does not divide, and the multi-host path (`jax.distributed.initialize`) with two
 processes on one machine."""
 
@@ -96,6 +97,22 @@ out["eval_shape"] = list(both.success.shape)
 pairs = zip(jax.tree.leaves(one), jax.tree.leaves(both))
 out["eval_equal"] = all(np.array_equal(a, b) for a, b in pairs)
 out["eval_successes"] = int(np.sum(both.success))
+
+# MuJoCo Warp under the trainer's mesh: each device steps its own cars (`Trainer.per_device`), so
+# the rollout has no gathers around Warp's foreign call
+import warp
+warp.config.optimization_level = 0
+world, _, car, car_config = experiment.build(
+    "genz", "CarLTL0-v0", {{"num_envs": 2, "num_steps": 1, "num_minibatches": 1, "update_epochs": 1}},
+    None, jax.random.key(0), {{"physics": "warp"}})
+trainer = make_train(car_config, car, env_mesh())
+runner = jax.jit(trainer.init)(jax.random.key(1))
+collect = jax.jit(lambda r: trainer.collect(r, jax.random.key(2))).lower(runner).compile()
+traj = collect(runner)[2]
+out["warp_gathers"] = collect.as_text().count("all-gather")
+out["warp_devices"] = len(traj.reward.sharding.device_set)
+out["warp_finite"] = bool(np.isfinite(np.asarray(traj.reward)).all()
+                          and np.isfinite(np.asarray(jax.tree.leaves(traj.obs)[0])).all())
 print("RESULT " + json.dumps(out))
 """
 
@@ -153,6 +170,9 @@ def test_two_devices_and_two_hosts_train_and_evaluate_like_one():
     # a batch of 3 envs on 2 devices is refused with a way out
     assert "num_envs=3 is not divisible by the 2 devices" in one_host["indivisible"]
     assert "--num-envs 4" in one_host["indivisible"]
+    # MuJoCo Warp's foreign call runs on each device's cars, not on cars gathered from both
+    assert (one_host["warp_gathers"], one_host["warp_devices"]) == (0, 2)
+    assert one_host["warp_finite"]
     # evaluation: padded and sharded, the same table as on one device
     assert one_host["eval_shape"] == [2, 2, 3] and one_host["eval_equal"]
     # two processes (jax.distributed.initialize, one device each) train as one process of two

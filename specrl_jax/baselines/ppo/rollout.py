@@ -76,14 +76,16 @@ def collect(
     gamma: float,
     timeouts_terminal: bool,
     constrain: Callable[[Any], Any] = lambda x: x,
+    per_device: Callable[[Callable], Callable] = lambda f: f,
 ) -> tuple[Any, Any, Transition]:
     """Run `num_steps` steps of the current policy in B envs.
 
     Returns `(env_state, obs, transitions)` with transitions `[T, B, ...]`. When time-outs are not
     terminal, the reward of a truncated step gets `gamma * V(final_obs)` added (bootstrap).
-    `constrain` re-applies the env-axis sharding to the carry.
+    `constrain` re-applies the env-axis sharding to the carry; `per_device` maps the batched env
+    step `(keys, state, action, task_params)` to one that steps each device's envs where they are.
     """
-    step_batch = jax.vmap(env.step, in_axes=(0, 0, 0, None))
+    step_batch = per_device(jax.vmap(env.step, in_axes=(0, 0, 0, None)))
 
     def one_step(carry, key_step):
         env_state, obs = carry

@@ -11,6 +11,7 @@ and `learn` an update's two halves (rollout, PPO step) for profiling.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from typing import Any
 
 import flax.linen as nn
@@ -166,6 +167,17 @@ class Trainer:
         return jax.tree.map(lambda x: x if x.shape[axis] % self.mesh.size
                             else jax.lax.with_sharding_constraint(x, sharding), tree)
 
+    def per_device(self, step_batch: Callable) -> Callable:
+        """`step_batch(keys, state, action, task_params)` over the env axis, run by each device on
+        its own envs (`shard_map`) on a mesh of several: every op of the env, foreign calls
+        included (MuJoCo Warp, which XLA would otherwise gather onto every device), stays where
+        its envs are. Unchanged on one device."""
+        if self.mesh is None or self.mesh.size == 1:
+            return step_batch
+        envs = PartitionSpec("env")
+        return jax.shard_map(step_batch, mesh=self.mesh, in_specs=(envs, envs, envs, PartitionSpec()),
+                             out_specs=envs, check_vma=False)
+
     def apply(self, params: Any, obs: Any):
         return self.method.network.apply(params, obs)
 
@@ -185,6 +197,7 @@ class Trainer:
         return rollout.collect(
             key, runner.params, self.apply, self.method.env, runner.env_state, runner.obs,
             runner.task_params, cfg.num_steps, cfg.gamma, cfg.timeouts_terminal, self.constrain,
+            self.per_device,
         )
 
     def learn(self, params: Any, opt_state: Any, traj: rollout.Transition, last_obs: Any,
