@@ -178,8 +178,9 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
     whatever the horizon.
 
     The episodes of a (seed, spec) are sharded over `devices` (default: every local device),
-    padded to a multiple of their count; an episode's outcome depends on its seed and index
-    only, so the table is the same on any number of devices."""
+    padded to a multiple of their count, and each device runs its own (`shard_map`); an
+    episode's outcome depends on its seed and index only, so the table is the same on any
+    number of devices."""
     policy = as_stateful(policy)
     fixed_horizon = int(params.max_steps) if horizon is None else int(horizon)
     mesh = Mesh(np.asarray(list(devices) if devices is not None else jax.local_devices()), ("env",))
@@ -193,6 +194,8 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
         return _outcome(state, aborted, visits)
 
     per_episode = jax.vmap(episode, in_axes=(None, None, None, None, None, 0))
+    if mesh.size > 1:  # each device runs its own episodes: foreign calls (MuJoCo Warp) included
+        per_episode = _on_each_device(per_episode, mesh)
     per_spec = jax.vmap(per_episode, in_axes=(None, None, None, None, 0, None))
 
     @jax.jit
@@ -220,6 +223,27 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
     return evaluator
 
 
+def _on_each_device(per_episode: Callable[..., EpisodeTable], mesh: Mesh
+                    ) -> Callable[..., EpisodeTable]:
+    """`per_episode(policy_params, run_params, steps, seed, spec_index, episodes)` run by each
+    device of `mesh` on its share of `episodes` (`shard_map`); an int `steps` stays static."""
+    replicated, sharded = PartitionSpec(), PartitionSpec("env")
+
+    def run(policy_params, run_params, steps, seed, spec_index, episodes):
+        static = isinstance(steps, int)
+
+        def here(policy_params, run_params, traced_steps, seed, spec_index, episodes):
+            horizon = steps if static else traced_steps
+            return per_episode(policy_params, run_params, horizon, seed, spec_index, episodes)
+
+        return jax.shard_map(
+            here, mesh=mesh, out_specs=sharded, check_vma=False,
+            in_specs=(replicated, replicated, replicated, replicated, replicated, sharded),
+        )(policy_params, run_params, jnp.int32(0) if static else steps, seed, spec_index, episodes)
+
+    return run
+
+
 def _outcome(state: TaskState, aborted: jax.Array, visits: jax.Array | None) -> EpisodeTable:
     return EpisodeTable(state.success, state.violation, state.time, state.num_accepting, aborted,
                         visits)
@@ -235,7 +259,7 @@ def check_seeds(seeds: Sequence[int]) -> tuple[int, ...]:
             raise TypeError(f"seeds must be integers, got {seed!r}")
         if not 0 <= int(seed) < 2**32:
             raise ValueError(f"seeds must lie in 0 .. 2**32 - 1, got {seed}")
-    if len(set(int(s) for s in seeds)) != len(seeds):
+    if len({int(s) for s in seeds}) != len(seeds):
         dupes = sorted({int(s) for s in seeds if list(seeds).count(s) > 1})
         raise ValueError(f"seeds must be distinct (a repeated seed repeats its episodes), got "
                          f"{dupes} more than once")

@@ -102,7 +102,7 @@ out["eval_successes"] = int(np.sum(both.success))
 # the rollout has no gathers around Warp's foreign call
 import warp
 warp.config.optimization_level = 0
-world, _, car, car_config = experiment.build(
+world, car_params, car, car_config = experiment.build(
     "genz", "CarLTL0-v0", {{"num_envs": 2, "num_steps": 1, "num_minibatches": 1, "update_epochs": 1}},
     None, jax.random.key(0), {{"physics": "warp"}})
 trainer = make_train(car_config, car, env_mesh())
@@ -113,6 +113,14 @@ out["warp_gathers"] = collect.as_text().count("all-gather")
 out["warp_devices"] = len(traj.reward.sharding.device_set)
 out["warp_finite"] = bool(np.isfinite(np.asarray(traj.reward)).all()
                           and np.isfinite(np.asarray(jax.tree.leaves(traj.obs)[0])).all())
+# and the evaluator: each device runs its own episodes
+from specrl_jax.eval.evaluate import prepare_specs
+car_task = TaskEnv(world, prepare_specs(world, ["F blue"])[0])
+shape = world.action_space.shape
+act = lambda p, obs, state, key: jax.random.uniform(key, shape, minval=-1.0, maxval=1.0)
+car_eval = make_evaluator(act, car_task, car_params, 2, horizon=3).lower(None, seeds).compile()
+out["warp_eval_gathers"] = car_eval.as_text().count("all-gather")
+out["warp_eval_shape"] = list(car_eval(None, seeds).success.shape)
 print("RESULT " + json.dumps(out))
 """
 
@@ -173,6 +181,7 @@ def test_two_devices_and_two_hosts_train_and_evaluate_like_one():
     # MuJoCo Warp's foreign call runs on each device's cars, not on cars gathered from both
     assert (one_host["warp_gathers"], one_host["warp_devices"]) == (0, 2)
     assert one_host["warp_finite"]
+    assert one_host["warp_eval_gathers"] == 0 and one_host["warp_eval_shape"] == [2, 1, 2]
     # evaluation: padded and sharded, the same table as on one device
     assert one_host["eval_shape"] == [2, 2, 3] and one_host["eval_equal"]
     # two processes (jax.distributed.initialize, one device each) train as one process of two

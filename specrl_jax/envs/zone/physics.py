@@ -96,9 +96,9 @@ def resolve_physics(physics: str, robot: str) -> str:
     "auto" is "warp" for the robots in `WARP_ROBOTS` when JAX runs on one CUDA GPU in float32
     and warp-lang is installed, else "jax" (with a warning when only warp-lang is missing: the
     robot then steps several times slower). With several devices "auto" is "jax": MuJoCo Warp
-    runs as a foreign call that XLA cannot split across devices (training steps each device's
-    worlds apart, `Trainer.per_device`, but evaluation shards through XLA); with `jax_enable_x64`
-    too, as MuJoCo Warp is float32 only. "jax" and "warp" are kept as given.
+    runs as a foreign call that XLA cannot split across devices (the trainer and the evaluator
+    step each device's worlds apart, so "warp" given explicitly runs per device there); with
+    `jax_enable_x64` too, as MuJoCo Warp is float32 only. "jax" and "warp" are kept as given.
     """
     if physics not in PHYSICS:
         raise ValueError(f"unknown physics backend {physics!r}; accepted: {PHYSICS}")
