@@ -74,6 +74,11 @@ _SOURCE = re.compile(r'source_file="([^"]+)" source_line=(\d+)')
 COLLECTIVES = ("all-gather", "all-to-all", "all-reduce", "collective-permute", "reduce-scatter")
 
 
+def _short(path: str) -> str:
+    """A source path from its package folder on (`site-packages/...`, `specrl_jax/...`)."""
+    return re.sub(r"^.*/(site-packages|specrl_jax)/", r"\1/", path)
+
+
 def program_stats(compiled: Any) -> dict[str, Any]:
     """Size and structure of a compiled program (its HLO text after optimisation)."""
     ops: collections.Counter = collections.Counter()
@@ -94,8 +99,7 @@ def program_stats(compiled: Any) -> dict[str, Any]:
             targets[target.group(1) if target else "?"] += 1
         elif op.removesuffix("-start") in COLLECTIVES:
             where = _SOURCE.search(line)
-            where = (re.sub(r"^.*/(site-packages|specrl_jax)/", r"\1/", where.group(1))
-                     + f":{where.group(2)}") if where else "?"
+            where = f"{_short(where.group(1))}:{where.group(2)}" if where else "?"
             collective_sources[f"{op.removesuffix('-start')} {where}"] += 1
     callbacks = sum(n for t, n in targets.items() if "callback" in t.lower())
     stats = {
@@ -214,7 +218,7 @@ def while_sources(jaxpr: Any, found: collections.Counter | None = None) -> dict[
     for eqn in jaxpr.eqns:
         if eqn.primitive.name == "while":
             where = source_info_util.summarize(eqn.source_info)
-            found[re.sub(r"^.*/(site-packages|specrl_jax)/", r"\1/", where)] += 1
+            found[_short(where)] += 1
         for param in eqn.params.values():
             for sub in param if isinstance(param, (list, tuple)) else (param,):
                 inner = getattr(sub, "jaxpr", sub)  # a ClosedJaxpr's Jaxpr, or a Jaxpr
@@ -437,7 +441,6 @@ def plot_scaling(rows: list[dict[str, Any]], path: str) -> None:
         rates = [by_count[n]["full_steps_per_s"] / 1e6 for n in counts]
         scaling = efficiencies(dict(zip(counts, rates)))
         line, = ax_rate.plot(counts, rates, "o-", label=name)
-        ax_rate.set_xticks(counts)
         ax_rate.plot(counts, [rates[0] * n / counts[0] for n in counts], ":", color=line.get_color())
         for n, rate in zip(counts, rates):
             ax_rate.annotate(f"{scaling[n]:.2f}", (n, rate), textcoords="offset points",
@@ -449,6 +452,7 @@ def plot_scaling(rows: list[dict[str, Any]], path: str) -> None:
         ax_split.bar(x, update, width, bottom=rollout, color=line.get_color(), alpha=0.45,
                      label=f"{name}: PPO update")
         ax_split.set_xticks(range(len(counts)), [str(n) for n in counts])
+    ax_rate.set_xticks(sorted({n for by_count in runs_by_env.values() for n in by_count}))
     ax_rate.set(xlabel="devices (env batch per device fixed)", ylabel="M env-steps/s",
                 title="rate (dotted: ideal; labels: efficiency)")
     ax_split.set(xlabel="devices", ylabel="s per update",
@@ -467,7 +471,7 @@ def main() -> None:
             plot_scaling([json.loads(line) for line in f if line.strip()], args.plot)
         print(f"wrote {args.plot}")
         return
-    rates, rows = {}, []
+    rows = []
     for num_devices in args.devices:
         result = profile(args, num_devices)
         rows.append(result)
@@ -479,7 +483,7 @@ def main() -> None:
                  f"{result['full_steps_per_s']:,.0f} env-steps/s")
         harness.emit(harness.row(figure, value, args.seeds * result["num_envs"], **result),
                      args.out)
-        rates[num_devices] = result["full_steps_per_s"]
+    rates = {r["devices"]: r["full_steps_per_s"] for r in rows}
     if len(rates) > 1:
         scaling = efficiencies(rates)
         print("devices  env-steps/s  efficiency")

@@ -122,9 +122,9 @@ def bank_embedder(encoder_params: Any, graphs: GraphBank, bank: DFABank, num_lay
                   max_table_rows: int = rad_table.MAX_TABLE_ROWS
                   ) -> Callable[[jax.Array, jax.Array], jax.Array]:
     """`embedder`'s `embed`, read from a table of every reachable state tuple of `bank` encoded
-    once (`rad_table`, the encoder batched and packed; read from the disk cache, `rad.disk`), so no
-    step runs the encoder. Where the
-    table would exceed `max_table_rows` rows, `embed` itself with a warning (0: always).
+    once (`rad_table`, the encoder batched and packed; read from the disk cache, `rad.disk`), so
+    no step runs the encoder. Where the table would exceed `max_table_rows` rows, `embed` itself
+    with a warning (0: always).
     """
     embed = embedder(encoder_params, graphs, bank, num_layers)
     if max_table_rows <= 0:

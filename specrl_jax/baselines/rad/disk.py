@@ -10,7 +10,6 @@ entry is computed again and stored. Without a cache directory nothing is read or
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import pathlib
 from collections.abc import Callable, Sequence
@@ -26,20 +25,11 @@ from specrl_jax.baselines.rad import table as rad_table
 from specrl_jax.specs import CurriculumSampler
 from specrl_jax.tasks import dfa_source
 from specrl_jax.tasks.dfa_source import CurriculumDFAs
+from specrl_jax.tasks.sources import ByContent
 
 _PACKAGE = pathlib.Path(__file__).resolve().parents[2]
 #: the sources a curriculum's DFAs and a table depend on
 _SOURCES = tuple(str(_PACKAGE / sub) for sub in ("automata", "tasks", "specs", "baselines/rad"))
-
-
-def _arrays_digest(tree: Any) -> str:
-    """Digest of every leaf's dtype, shape and bytes."""
-    h = hashlib.sha256()
-    for leaf in jax.tree.leaves(tree):
-        leaf = np.asarray(leaf)
-        h.update(f"{leaf.dtype}{leaf.shape}".encode())
-        h.update(np.ascontiguousarray(leaf).tobytes())
-    return h.hexdigest()
 
 
 def _spot_version() -> str:
@@ -72,7 +62,7 @@ def embedding_table(encoder_params: Any, bank: DFABank, num_layers: int, max_row
     """`build()`, the embedding table of `bank` under `encoder_params` (of `num_layers` rounds, at
     most `max_rows` rows), read from the disk cache when stored there. `build`'s errors pass."""
     name = "rad_table_" + cache.digest({
-        "encoder": _arrays_digest(encoder_params), "bank": _arrays_digest(bank),
+        "encoder": ByContent(encoder_params).digest, "bank": ByContent(bank).digest,
         "num_layers": num_layers, "max_rows": max_rows, "jax": jax.__version__,
         "platform": jax.default_backend()}, _SOURCES)
     fields = [f.name for f in dataclasses.fields(rad_table.EmbeddingTable)]
