@@ -401,6 +401,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if args.plot_rows and not args.plot:
         parser.error("--plot-rows draws to --plot PNG; give both")
+    if args.plot and not args.plot_rows and len(set(args.devices)) < 2:
+        parser.error("--plot draws weak scaling: give several device counts (--devices 1 2) or "
+                     "--plot-rows JSONL")
     sizes = [v for v in (args.seeds, args.num_envs, args.num_steps, args.minibatches, args.epochs,
                          args.updates, args.repeats, *args.devices) if v is not None]
     if min(sizes) < 1 or (args.map_bank or 0) < 0:
