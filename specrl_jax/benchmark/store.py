@@ -169,7 +169,8 @@ def _name(cell: Cell | str) -> str:
 
 def missing_work(cell: Cell, record: dict[str, Any]) -> list[str]:
     """What `record` lacks to complete grid entry `cell`: `train` when its training is not
-    complete, and the suites not evaluated on all of its seeds."""
+    complete, and the suites not evaluated on all of its seeds or scored under an older version
+    of the suite (`scored_now`)."""
     todo = []
     if cell.trains and not record.get("training", {}).get("complete", False):
         todo.append("train")
@@ -177,7 +178,8 @@ def missing_work(cell: Cell, record: dict[str, Any]) -> list[str]:
     for suite in cell.suites:
         entry = record.get("suites", {}).get(suite)
         if entry is None or list(entry.get("seeds", [])) != seeds \
-                or entry.get("episodes_per_seed") != cell.episodes:
+                or entry.get("episodes_per_seed") != cell.episodes \
+                or not scored_now(suite, entry):
             todo.append(suite)
     return todo
 

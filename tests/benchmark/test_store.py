@@ -55,3 +55,18 @@ def test_suite_versions_mark_entries_scored_before_the_epsilon_fall_back():
     assert scored_now("zone/infinite/per", {"suite_version": per})
     assert not scored_now("zone/infinite/per", {"suite_version": "0123456789"})
     assert scored_now("zone/infinite/rsp", {"is_finite": [False]})  # no jumps: scored alike
+
+
+def test_a_suite_scored_under_an_older_version_is_work_to_redo():
+    from specrl_jax import specs
+    from specrl_jax.benchmark.store import missing_work
+
+    cell = grid.cell("PointLTL0-v0/genz")
+    record = {"training": {"complete": True}, "suites": {
+        s: {"seeds": [1, 2, 3, 4, 5], "episodes_per_seed": cell.episodes,
+            "suite_version": specs.suite_version(s)} for s in cell.suites}}
+    assert missing_work(cell, record) == []
+    record["suites"]["zone/infinite/per"]["suite_version"] = "0123456789"
+    assert missing_work(cell, record) == ["zone/infinite/per"]
+    del record["suites"]["zone/infinite/per"]["suite_version"]  # stored before versions
+    assert missing_work(cell, record) == ["zone/infinite/per"]
