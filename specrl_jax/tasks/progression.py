@@ -65,7 +65,7 @@ def _progress(f: spot.formula, true: frozenset[str],
     key = (f, true)
     if key in memo:
         return memo[key]
-    prog = lambda g: _progress(g, true, memo)  # noqa: E731
+    prog = lambda g: _progress(g, true, memo)
     if kind == spot.op_And:
         out = spot.formula.And([prog(c) for c in f])
     elif kind == spot.op_Or:
@@ -182,10 +182,6 @@ class ProgressionBank:
     @property
     def num_formulas(self) -> int:
         return int(self.roots.shape[0])
-
-    def graph(self, state: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
-        """`(tokens, parent, edge)` of formula state `state` (int[...]), each [..., N]."""
-        return self.tokens[state], self.parent[state], self.edge[state]
 
 
 def build_bank(formulas: Sequence[str], propositions: Sequence[str], alphabet: np.ndarray,

@@ -2,6 +2,7 @@
 edge types), learning a tiny world through the task loop, and the test-time agent's own
 progression against the task loop's automaton flags."""
 
+import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -9,6 +10,7 @@ import spot
 from tiny_learning import early_late, train_rows
 
 from specrl_jax import automata
+from specrl_jax.automata import zero_or_one
 from specrl_jax.baselines import ltl2action
 from specrl_jax.baselines.encoders import obs_parts
 from specrl_jax.envs.letter import LetterConfig, make_letter_world
@@ -105,6 +107,76 @@ def test_rgcn_is_invariant_to_node_order_and_padding_but_not_to_edge_types():
     np.testing.assert_allclose(batch[1], encoder.apply(params, *other), rtol=1e-5, atol=1e-5)
 
 
+def _small_bank_obs(batch_shape):
+    """A bank of a few formulas over 3 propositions (S states) and `FormulaObs` of random states
+    in it (no world observation) for the bootcamp network, which reads the formula alone."""
+    props = ("a", "b", "c")
+    bank = build_bank(["!a U (b & F c)", "F(a & F b)", "G !c & F a"], props, zero_or_one(3))
+    graphs = ltl2action.FormulaGraphs(bank)
+    rng = np.random.default_rng(0)
+    state = jnp.asarray(rng.integers(0, graphs.num_states, batch_shape), jnp.int32)
+    network = ltl2action.pretrain.BootcampNetwork(props, 3)
+    return network, ltl2action.FormulaObs({}, state, graphs)
+
+
+def test_rgcn_table_of_the_bank_equals_each_samples_own_graph_in_outputs_and_gradients():
+    """More samples than bank states: the R-GCN runs once over the bank and is gathered by
+    state; vmapped over the samples (one each), it runs over each sample's graph. Both give the
+    same logits, values and parameter gradients, alone and vmapped over two seeds."""
+    network, obs = _small_bank_obs((2, 3, 8))
+    assert obs.graphs.num_states < 24
+    params = jax.vmap(network.init, in_axes=(0, None))(jax.random.split(jax.random.key(0), 2),
+                                                     jax.tree.map(lambda x: x[0, 0], obs))
+
+    def table(p, o):
+        out = network.apply(p, o)
+        return out.pi.logits, out.value
+
+    def per_sample(p, o):
+        return jax.vmap(jax.vmap(lambda one: table(p, one)))(o)
+
+    def outputs_and_grads(embed):
+        def loss(p, o):
+            return sum(jnp.sum(jnp.sin(x)) for x in embed(p, o))
+
+        return jax.jit(lambda p, o: (embed(p, o), jax.grad(loss)(p, o)))
+
+    first_seed = jax.tree.map(lambda leaf: leaf[0], (params, obs))
+    for seeds in (lambda f: f(*first_seed), lambda f: jax.vmap(f)(params, obs)):
+        got, grads = seeds(outputs_and_grads(table))
+        want, want_grads = seeds(outputs_and_grads(per_sample))
+        for x, y in zip(got, want):
+            np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-6)
+        for x, y in zip(jax.tree.leaves(grads), jax.tree.leaves(want_grads)):
+            np.testing.assert_allclose(x, y, rtol=1e-4, atol=1e-5)
+
+
+def test_rgcn_runs_over_the_bank_only_when_it_has_fewer_states_than_the_samples():
+    """The graphs the R-GCN reads: the bank's S where a forward pass has more than S samples
+    (under `vmap`, more per slice), else the samples' own."""
+    network, obs = _small_bank_obs((64,))
+    num_states = obs.graphs.num_states
+    assert 4 < num_states < 32
+    params = network.init(jax.random.key(0), obs)
+    seen = []
+
+    def record(call, args, kwargs, context):
+        if isinstance(context.module, ltl2action.networks.RGCNEncoder):
+            seen.append(args[0].shape[:-1])  # the graphs' batch shape (tokens [..., N])
+        return call(*args, **kwargs)
+
+    def shaped(*shape):
+        return jax.tree.map(lambda x: x[:np.prod(shape)].reshape(shape), obs)
+
+    with nn.intercept_methods(record):
+        for samples in (num_states, num_states + 1):
+            jax.eval_shape(network.apply, params, shaped(1, samples))
+        for slices in (2, 16):  # 32 and 4 samples per slice
+            jax.eval_shape(jax.vmap(network.apply, in_axes=(None, 0)), params,
+                           shaped(slices, 64 // slices))
+    assert seen == [(1, num_states), (num_states,), (num_states,), (4,)]
+
+
 def _tiny_world(max_steps=6):
     # 5x5 torus, one 'a' and one 'b': the formula says which letter to reach (and which to avoid)
     world, params = make_letter_world(LetterConfig(grid_size=5, letters=("a", "b"), counts=1),
@@ -140,7 +212,8 @@ def test_test_time_agent_progresses_the_evaluated_formula_itself():
     task = TaskEnv(world, compiled)
     bank = build_bank(formulas, world.propositions, world.alphabet)  # same formulas, same order
     obs, state = task.reset(jax.random.key(3), params, 0)
-    first = ltl2action.FormulaObs(obs_parts(obs, world.obs_kinds), *bank.graph(jnp.int32(0)))
+    first = ltl2action.FormulaObs(obs_parts(obs, world.obs_kinds), jnp.int32(0),
+                                  ltl2action.FormulaGraphs(bank))
     net_params = network.init(jax.random.key(0), jax.tree.map(lambda x: x[None], first))
 
     def episode(key, index):

@@ -7,12 +7,14 @@ formulas, whose stages advance on the agent's success (LetterWorld, ZoneEnv;
 `tasks.curriculum_progression`), or draws of one of the original's samplers (`Until_1_3_1_2`,
 `Eventually_1_5_1_4`, `Until_1_2_1_1`, ...; the arm). The network reads the current formula's
 syntax tree through a relational GCN (`RGCNEncoder`: 8 rounds of one shared relational
-convolution over 4 edge types, hidden 32, readout at the root, 32-d embedding), concatenated with
-the observation embedding, into an actor [64, 64, 64] ReLU and a critic [64, 64] Tanh. Dense
-layers start as the original's: normal weights with each unit's weight vector of unit norm,
-zero biases. The encoder can start from parameters pretrained on the symbol task (the original's
-optional LTLBootcamp, `ltl2action.pretrain`; `make_method(pretrain_steps=...)` runs it before
-PPO) and stay frozen (`freeze_encoder`). At test time (`make_policy`) the agent progresses the
+convolution over 4 edge types, hidden 32, readout at the root, 32-d embedding; where the bank has
+fewer formula states than a forward pass has samples, run once over the bank's graphs and
+gathered by state, `networks.embed_formulas`), concatenated with the observation embedding, into
+an actor [64, 64, 64] ReLU and a critic [64, 64] Tanh. Dense layers start as the original's:
+normal weights with each unit's weight vector of unit norm, zero biases. The encoder can start
+from parameters pretrained on the symbol task (the original's optional LTLBootcamp,
+`ltl2action.pretrain`; `make_method(pretrain_steps=...)` runs it before PPO) and stay frozen
+(`freeze_encoder`). At test time (`make_policy`) the agent progresses the
 evaluated formula itself.
 """
 
@@ -33,6 +35,7 @@ from specrl_jax import automata, families, specs
 from specrl_jax.baselines.encoders import obs_parts
 from specrl_jax.baselines.ltl2action import pretrain
 from specrl_jax.baselines.ltl2action.networks import (
+    FormulaGraphs,
     FormulaObs,
     LTL2ActionNetwork,
     network_for,
@@ -147,9 +150,10 @@ def training_formulas(propositions: Sequence[str], family: str = "letter", num_f
 def observe_formula(bank: ProgressionBank, obs_kinds: Mapping[str, str]):
     """`observe(world_obs, task_state) -> FormulaObs` for a progression task loop."""
     kinds = dict(obs_kinds)
+    graphs = FormulaGraphs(bank)
 
     def observe(obs, state):
-        return FormulaObs(obs_parts(obs, kinds), *bank.graph(state.task.state))
+        return FormulaObs(obs_parts(obs, kinds), state.task.state, graphs)
 
     return observe
 
@@ -348,27 +352,28 @@ def make_policy(network: LTL2ActionNetwork, alphabet: jax.Array, obs_kinds: Mapp
     candidates = list(dict.fromkeys(formulas))
     if not candidates:
         raise ValueError(f"no candidate formulas over the propositions {props}")
-    banks: dict[Any, tuple[ProgressionBank, jax.Array]] = {}
+    banks: dict[Any, tuple[ProgressionBank, FormulaGraphs]] = {}
 
-    def bank_for(task_state) -> ProgressionBank:
+    def bank_for(task_state) -> tuple[ProgressionBank, FormulaGraphs]:
         spec_bank = task_state.task.bank
         if spec_bank not in banks:
             # host work at trace time: compile and compare concrete arrays, stage nothing
             with jax.ensure_compile_time_eval():
                 stacked = jax.device_get(spec_bank.specs)
                 texts = match_formulas(stacked, candidates, props, alphabet_np)
-                banks[spec_bank] = build_bank(texts, props, alphabet_np)
+                bank = build_bank(texts, props, alphabet_np)
+                banks[spec_bank] = bank, FormulaGraphs(bank)
         return banks[spec_bank]
 
     def init(params, obs, task_state, key):
-        bank = bank_for(task_state)
+        bank, _ = bank_for(task_state)
         return ProgressionCarry(bank.roots[task_state.spec_index], task_state.time)
 
     def apply(params, obs, task_state, carry: ProgressionCarry, key):
-        bank = bank_for(task_state)
+        bank, graphs = bank_for(task_state)
         stepped = step_state(bank, carry.state, task_state.propositions)
         state = jnp.where(task_state.time != carry.time, stepped, carry.state)
-        out = network.apply(params, FormulaObs(obs_parts(obs, kinds), *bank.graph(state)))
+        out = network.apply(params, FormulaObs(obs_parts(obs, kinds), state, graphs))
         action = out.pi.mode() if deterministic else out.pi.sample(key)
         return action, ProgressionCarry(state, task_state.time)
 

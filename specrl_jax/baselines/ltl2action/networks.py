@@ -1,21 +1,29 @@
 """LTL2Action's networks: the relational GCN over the progressed formula's syntax tree and the
-actor-critic that reads its embedding beside the observation."""
+actor-critic that reads its embedding beside the observation.
+
+The network reads each sample's formula state, an index into its progression bank's graphs
+(`FormulaObs`). A state's embedding depends only on the parameters and its graph, so where the
+bank has fewer states than a forward pass has samples the R-GCN runs once over the bank and each
+sample gathers its row (`embed_formulas`); the outputs are the same up to float reassociation.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import struct
 
 from specrl_jax.baselines.encoders import check_kinds
 from specrl_jax.baselines.heads import dense as _dense
 from specrl_jax.baselines.heads import embedding_actor_critic
 from specrl_jax.baselines.ppo.networks import PolicyOutput
-from specrl_jax.tasks.progression import NUM_EDGE_TYPES, num_features
+from specrl_jax.tasks.progression import NUM_EDGE_TYPES, ProgressionBank, num_features
+from specrl_jax.tasks.sources import ByContent
 
 #: the R-GCN's submodule name in the LTL2Action and pretraining networks (what transfers)
 ENCODER = "RGCNEncoder_0"  # flax's automatic name, kept so that saved parameters load
@@ -31,16 +39,35 @@ def relation_kernel_init(key: jax.Array, shape: Sequence[int],
     return jax.random.uniform(key, shape, dtype, -bound, bound)
 
 
-class FormulaObs(NamedTuple):
+class FormulaGraphs(ByContent):
+    """A progression bank's syntax trees (see `tasks.progression.ProgressionBank`) as static
+    metadata of `FormulaObs`, compared by content: `tokens` int16[S, N] (-1 padding), `parent`
+    int16[S, N] (-1: root or padding), `edge` int8[S, N]."""
+
+    def __init__(self, bank: ProgressionBank):
+        super().__init__(tuple(np.asarray(x) for x in (bank.tokens, bank.parent, bank.edge)))
+
+    @property
+    def num_states(self) -> int:
+        return int(self.tree[0].shape[0])
+
+    def graph(self, state: jax.Array | None = None) -> tuple[jax.Array, jax.Array, jax.Array]:
+        """`(tokens, parent, edge)` of formula state `state` (int[...]), each [..., N]; all S
+        states' ([S, N]) where `state` is None."""
+        if state is None:
+            return tuple(jnp.asarray(x) for x in self.tree)
+        return tuple(jnp.asarray(x)[state] for x in self.tree)
+
+
+@struct.dataclass
+class FormulaObs:
     """What the LTL2Action network reads (one env; leading batch axes allowed): the world
-    observation as encoder parts and the progressed formula's syntax tree (see
-    `tasks.progression.ProgressionBank`): `tokens` int16[N] (-1 padding), `parent` int16[N]
-    (-1: root or padding), `edge` int8[N]."""
+    observation as encoder parts and the progressed formula as `state` int32[] (a row of
+    `graphs`, the bank's syntax trees)."""
 
     parts: dict
-    tokens: jax.Array
-    parent: jax.Array
-    edge: jax.Array
+    state: jax.Array
+    graphs: FormulaGraphs = struct.field(pytree_node=False)
 
 
 class RGCNEncoder(nn.Module):
@@ -90,11 +117,27 @@ class RGCNEncoder(nn.Module):
         return _dense(self.out)(root).reshape(*batch, self.out)
 
 
+def uses_table(num_states: int, num_samples: int) -> bool:
+    """Whether `embed_formulas` runs the R-GCN once over the bank's `num_states` graphs (fewer
+    than the forward pass's `num_samples`) rather than over each sample's graph."""
+    return num_states < num_samples
+
+
+def embed_formulas(encoder: RGCNEncoder, obs: FormulaObs) -> jax.Array:
+    """float32[..., out]: the embedding of each sample's formula state (`obs.state` int[...]):
+    rows of the bank's table (the R-GCN over its S graphs, [S, out]) gathered by state where S is
+    below the number of samples, else the R-GCN over each sample's graph. The choice is static:
+    under `vmap` (seeds) the samples are one slice's."""
+    if uses_table(obs.graphs.num_states, obs.state.size):
+        return encoder(*obs.graphs.graph())[obs.state]
+    return encoder(*obs.graphs.graph(obs.state))
+
+
 class LTL2ActionNetwork(nn.Module):
     """Observation encoder (grid CNN, vector MLP [128, 64] ReLU, image CNN) and the R-GCN formula
-    embedding, concatenated; actor [64, 64, 64] ReLU then logits (or a Gaussian with Tanh mean
-    and state-dependent std); critic [64, 64] Tanh. `freeze_encoder`: no gradient reaches the
-    R-GCN (the original's `--freeze-ltl`)."""
+    embedding (`embed_formulas`), concatenated; actor [64, 64, 64] ReLU then logits (or a
+    Gaussian with Tanh mean and state-dependent std); critic [64, 64] Tanh. `freeze_encoder`: no
+    gradient reaches the R-GCN (the original's `--freeze-ltl`)."""
 
     num_actions: int  # discrete actions, or the action dimension when `continuous`
     propositions: tuple[str, ...]
@@ -103,8 +146,8 @@ class LTL2ActionNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, obs: FormulaObs) -> PolicyOutput:
-        formula = RGCNEncoder(num_features(len(self.propositions)), name=ENCODER)(
-            obs.tokens, obs.parent, obs.edge)
+        formula = embed_formulas(
+            RGCNEncoder(num_features(len(self.propositions)), name=ENCODER), obs)
         if self.freeze_encoder:
             formula = jax.lax.stop_gradient(formula)
         return embedding_actor_critic(obs.parts, formula, self.num_actions, self.continuous)

@@ -23,7 +23,12 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from specrl_jax.baselines.ltl2action.networks import ENCODER, FormulaObs, RGCNEncoder
+from specrl_jax.baselines.ltl2action.networks import (
+    ENCODER,
+    FormulaObs,
+    RGCNEncoder,
+    embed_formulas,
+)
 from specrl_jax.baselines.params_io import DATA_DIR, load_encoder_file, save_params
 from specrl_jax.baselines.ppo.networks import Categorical, PolicyOutput, unit_columns
 from specrl_jax.baselines.ppo.train import PPOConfig
@@ -36,16 +41,16 @@ HORIZON = 75
 
 
 class BootcampNetwork(nn.Module):
-    """The R-GCN (submodule `ENCODER`) with a linear actor over the letters and a
-    linear critic on its 32-d embedding, as the original's `--dumb-ac`."""
+    """The R-GCN (submodule `ENCODER`, `embed_formulas`) with a linear actor over the letters and
+    a linear critic on its 32-d embedding, as the original's `--dumb-ac`."""
 
     propositions: tuple[str, ...]
     num_actions: int
 
     @nn.compact
     def __call__(self, obs: FormulaObs) -> PolicyOutput:
-        emb = RGCNEncoder(num_features(len(self.propositions)), name=ENCODER)(
-            obs.tokens, obs.parent, obs.edge)
+        emb = embed_formulas(RGCNEncoder(num_features(len(self.propositions)), name=ENCODER),
+                             obs)
         logits = nn.Dense(self.num_actions, kernel_init=unit_columns, name="actor")(emb)
         value = nn.Dense(1, kernel_init=unit_columns, name="critic")(emb)[..., 0]
         zeros = jnp.zeros_like(value)
