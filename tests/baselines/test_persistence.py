@@ -153,3 +153,35 @@ def _outcomes_in(world, policy, horizon: int):
     params = TinyParams(max_steps=horizon)
     return evaluate(policy, (world, params), [PERSISTENCE], seeds=[0], episodes_per_seed=6,
                     horizon=horizon).table
+
+
+class StallWorld(StayWorld):
+    """StayWorld whose agent stays put for the first `STALL` steps whatever the action, as the
+    Point robot's deterministic policy dithers in place for a while before it sets off."""
+
+    def step_env(self, key, state, action, params):
+        return super().step_env(key, state, jnp.where(state.time < STALL, STAY, action), params)
+
+
+STALL = 10
+
+
+def test_genz_agent_keeps_the_epsilon_subgoal_through_a_timeout():
+    # the subgoal timer (6 steps) fires before the agent can move; the reference marks 'a' on
+    # the transitions leaving the initial state only, and the epsilon edge to the loop that
+    # reaches 'a' stays open: the agent keeps its subgoal, arrives and stays
+    world = StallWorld(TinyConfig(grid_size=5, num_letters=3))
+    policy = genz.make_policy(GenZScript(), world.alphabet, world.obs_kinds, replan_steps=6)
+    short, long = _outcomes_in(world, policy, 30), _outcomes_in(world, policy, 55)
+    for table in (short, long):
+        assert not np.asarray(table.aborted).any()
+        assert not np.asarray(table.violation).any()
+    visits_short, visits_long = np.asarray(short.num_accepting), np.asarray(long.num_accepting)
+    # 'a' is at most 4 moves away once the stall ends, then one epsilon step
+    assert (visits_short >= 30 - STALL - 4 - 1).all(), visits_short
+    np.testing.assert_array_equal(visits_long - visits_short, 25)
+    # an agent that never jumps cannot follow the epsilon edge: its first timeout gives 'a' up
+    never = genz.make_policy(GenZScript(), world.alphabet, world.obs_kinds, replan_steps=6,
+                             take_epsilon=False)
+    table = _outcomes_in(world, never, 30)
+    assert np.asarray(table.aborted).all() and (np.asarray(table.steps) == 6).all()

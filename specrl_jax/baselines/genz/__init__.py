@@ -232,6 +232,15 @@ def _split_letters(reach_props: jax.Array, avoid_props: jax.Array, usable: jax.A
     return reach.reshape(-1, num_props), avoid.reshape(-1, num_props), valid.reshape(-1)
 
 
+def leaves_state(spec: Any, q: jax.Array, num_props: int) -> jax.Array:
+    """bool[C*P]: candidate (c, p) reaches from state `q` itself, i.e. sequence c does not begin
+    with an epsilon step (then its reach step leaves the epsilon edge's target). A timeout in `q`
+    gives up only these, as the reference's `LDBA.mark_unfeasible(states, assignment)` strikes
+    the assignment from the transitions leaving those states and never an epsilon edge."""
+    here = ~pairs(spec, spec.seq_pair[q, :, 0]).epsilon  # [C]
+    return jnp.repeat(here, num_props)
+
+
 def first_of_kind(avoid_props: jax.Array, allowed: jax.Array) -> jax.Array:
     """bool[C*P]: the `allowed` candidates (c, p) whose pair (letter p, avoid set of c) no earlier
     allowed candidate has. Equal pairs give equal reduced observations, hence equal scores, and
@@ -274,17 +283,21 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
     Plans at the first step and whenever the automaton state changes: the candidate maximising
     `V_r - lam V_c` on its reduced observation, with the multiplier net's own `lam` (the clamp to
     [0.01, 5] belongs to the training loss only, as in the reference). After `replan_steps` steps
-    without progress its reach proposition is marked infeasible (every candidate reaching it) and
-    the next best is taken, unless the last transition was accepting (staying is then the goal;
-    the timer restarts). With no candidate left the agent gives the episode up (`aborted`, the
-    reference's `NoPathsException`: neither success nor violation). Actions are the policy's
-    mode (`deterministic`, the reference's setting) or samples.
+    without progress its reach proposition is marked infeasible (every candidate reaching it from
+    this state, `leaves_state`) and the next best is taken, unless the last transition was
+    accepting (staying is then the goal; the timer restarts). With no candidate left the agent
+    gives the episode up (`aborted`, the reference's `NoPathsException`: neither success nor
+    violation). Actions are the policy's mode (`deterministic`, the reference's setting) or
+    samples.
 
     Epsilon edges (`F G` formulas): with `take_epsilon` the agent jumps where `epsilon_slot`
     says (inside the goal zone), so the automaton reaches the accepting loop and the timer, which
-    never fires on an accepting step, keeps the subgoal. The reference's tracker never jumps and
-    its search finds no candidate there (every such episode is unreachable, docs/fidelity.md);
-    `take_epsilon=False` never jumps, and an `F G` episode is given up at its first timeout.
+    never fires on an accepting step, keeps the subgoal. Before the jump a timeout keeps the
+    epsilon candidate (its reach step leaves the loop state, not this one, as in the reference's
+    marking), so the agent may take as long as it needs to enter x, after a fall-back too. The
+    reference's tracker never jumps and its search finds no candidate there (every such episode
+    is unreachable, docs/fidelity.md); `take_epsilon=False` never jumps, and an `F G` episode is
+    given up at its first timeout.
 
     A plan scores the distinct open candidates only (`first_of_kind`), and none when no plan is
     due (`scoring.score_chosen`).
@@ -319,9 +332,13 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
         symbol = label_symbol(alphabet, task_state.propositions)
         give_up = timed_out & ~spec.accepting[q, symbol]
         # A timeout gives up the reach proposition itself (every candidate that shares it), as
-        # the reference marks the reach assignment infeasible at the current automaton state.
+        # the reference marks the reach assignment infeasible on the transitions leaving the
+        # current automaton state; a candidate behind an epsilon edge (`F G x`) keeps it, so an
+        # agent that jumps keeps its subgoal and the timer restarts (docs/fidelity.md).
         first = _first_pairs(spec, q, alphabet)
         same_reach = jnp.all(_split_letters(*first)[0] == carry.reach, axis=-1)
+        if take_epsilon:  # static; an agent that never jumps cannot follow an epsilon edge
+            same_reach = same_reach & leaves_state(spec, q, alphabet.shape[1])
         infeasible = jnp.where(moved, False, carry.infeasible) | (give_up & same_reach)
         due = moved | give_up
         carry = select_tree(due, plan(params, obs, task_state, first, infeasible, due),
