@@ -20,7 +20,7 @@ import yaml
 
 from specrl_jax.benchmark import grid, paper
 from specrl_jax.benchmark.grid import Cell
-from specrl_jax.benchmark.store import Store, scored_now, suite_metric, suite_seeds
+from specrl_jax.benchmark.store import Store, missing_work, scored_now, suite_metric, suite_seeds
 from specrl_jax.specs.suites import INFINITE_SCORING
 
 MEASUREMENTS = Path(__file__).resolve().parent / "data" / "measurements.yaml"
@@ -81,7 +81,10 @@ def _cells_by_env(store: Store) -> dict[str, list[tuple[Cell, dict[str, Any]]]]:
 def _state_note(c: Cell, record: dict[str, Any], store: Store) -> str:
     if store.state(c) == "done":
         return ""
-    return f" **(partial: {suite_seeds(record)}/{c.seeds} seeds)**"
+    seeds = suite_seeds(record)
+    if seeds == c.seeds:  # every seed evaluated, but work left: a suite to (re)score or missing
+        return f" **(partial: {', '.join(missing_work(c, record))} to run)**"
+    return f" **(partial: {seeds}/{c.seeds} seeds)**"
 
 
 def suite_table(env_id: str, suite: str, rows: Sequence[tuple[Cell, dict[str, Any]]],
