@@ -38,6 +38,9 @@ class MethodSpec:
             object (GCRL-LTL's value network, whose widths are a `make_method` option).
         options: the keyword options `make_method` takes beyond world, params and family.
         deterministic: `(family) -> bool`, the reference's test-time action mode.
+        deterministic_infinite: `(family) -> bool`, the reference's action mode on specs that
+            are not co-safe, where it differs from `deterministic` (given to `make_policy` as
+            `deterministic_infinite`); None: `deterministic` holds for every spec.
         prepare_training: `(method, key, config, log, saved) -> method`, a phase before PPO;
             `saved` (a path in the run directory, or None) keeps its result for a resumed run.
         finish_training: `(method, params, key, config, log) -> params`, a phase after PPO.
@@ -66,6 +69,7 @@ class MethodSpec:
     options: tuple[str, ...] = ()
     policy_options: Callable[[Method], dict[str, Any]] | None = None
     deterministic: Callable[[str], bool] = _reference_modes
+    deterministic_infinite: Callable[[str], bool] | None = None
     prepare_training: Callable[..., Method] | None = None
     finish_training: Callable[..., Any] | None = None
     param_shapes: Callable[..., Any] | None = None

@@ -238,10 +238,15 @@ def make_policy(method: str, world: Any, method_obj: Any, deterministic: bool | 
                 world_family: str | None = None, **options: Any):
     """The method's test-time agent; `deterministic` None = the reference's setting
     (`MethodSpec.deterministic`: GenZ-LTL mode actions; DeepLTL and GCRL-LTL sampled actions on
-    LetterWorld, mode actions elsewhere)."""
+    LetterWorld, mode actions elsewhere; DeepLTL sampled actions on every infinite spec,
+    `MethodSpec.deterministic_infinite`); an explicit `deterministic` holds for every spec."""
     spec = get_method(method)
+    family = families.name_of(world, world_family)
+    if spec.deterministic_infinite is not None:  # an explicit mode holds for every spec
+        options.setdefault("deterministic_infinite", spec.deterministic_infinite(family)
+                           if deterministic is None else deterministic)
     if deterministic is None:
-        deterministic = spec.deterministic(families.name_of(world, world_family))
+        deterministic = spec.deterministic(family)
     if spec.policy_options is not None:
         options = {**spec.policy_options(method_obj), **options}
     return spec.make_policy(method_obj.network, world.alphabet, world.obs_kinds,

@@ -97,7 +97,7 @@ def suite_table(env_id: str, suite: str, rows: Sequence[tuple[Cell, dict[str, An
     head = ["method", *(label for _, label in columns),
             *(f"paper {dict(columns)[m]}" for m in quoted), "seeds x episodes, horizon"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    any_stale = False
+    any_stale, reasons = False, []
     for c, record in rows:
         entry = record.get("suites", {}).get(suite)
         if entry is None:
@@ -108,14 +108,19 @@ def suite_table(env_id: str, suite: str, rows: Sequence[tuple[Cell, dict[str, An
             number = paper.lookup(env_id, suite, c.method, m)
             theirs.append(number.text() if number else "-")
         size = f"{len(entry['seeds'])} x {entry['episodes_per_seed']}, {entry['horizon']:,}"
+        reason = entry.get("stale")
+        if reason:
+            reasons.append(f"{method_label(c)}: {reason}")
         stale = not scored_now(suite, entry)
-        any_stale |= stale
+        any_stale |= stale and not reason
         lines.append("| " + " | ".join([method_label(c) + _state_note(c, record, store)
                                          + (" †" if stale else ""), *ours, *theirs, size]) + " |")
     if any_stale:
         lines += ["", ("† scored before the suite's current version (`specs.suites.INFINITE_SCORING`"
                        f": \"{INFINITE_SCORING}\"), which changes only specs with epsilon edges "
                        "(persistence); `specrl-jax reproduce --rerun` rescores it.")]
+    for reason in reasons:
+        lines += ["", f"† {reason}; `specrl-jax reproduce` scores it again."]
     return lines if len(lines) > 2 else []
 
 

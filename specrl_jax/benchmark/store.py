@@ -70,10 +70,19 @@ def suite_entry(result: Any) -> dict[str, Any]:
 def scored_now(suite: str, entry: dict[str, Any]) -> bool:
     """Whether a stored suite entry was scored as `suite` is now (its `suite_version`; entries
     stored before versions were recorded count as current unless the suite's automata take
-    epsilon jumps, whose scoring changed since: `specs.suites.INFINITE_SCORING`)."""
+    epsilon jumps, whose scoring changed since: `specs.suites.INFINITE_SCORING`), and by the
+    method's current test-time agent (an entry marked `stale` with the reason, `mark_stale`)."""
+    if entry.get("stale"):
+        return False
     if "suite_version" in entry:
         return entry["suite_version"] == specs.suite_version(suite)
     return not specs.suite_info(suite).may_jump
+
+
+def mark_stale(entry: dict[str, Any], reason: str) -> dict[str, Any]:
+    """`entry` marked as scored by an earlier test-time agent (`reason`: what changed since, for
+    the results page); `reproduce` then runs the suite again."""
+    return {**entry, "stale": reason}
 
 
 class Store:

@@ -185,3 +185,33 @@ def test_genz_agent_keeps_the_epsilon_subgoal_through_a_timeout():
                              take_epsilon=False)
     table = _outcomes_in(world, never, 30)
     assert np.asarray(table.aborted).all() and (np.asarray(table.steps) == 6).all()
+
+
+class HesitantScript(DeepLTLScript):
+    """DeepLTLScript whose epsilon action, where allowed, has probability 0.4 (staying 0.6):
+    below the mode's 0.7, as the trained Point policy in its goal zone."""
+
+    def _one(self, obs):
+        out = super()._one(obs)
+        logits = jnp.where(obs.epsilon_allowed,
+                           jnp.where(jnp.arange(6) == 5, 20.0 + np.log(0.4 / 0.6),
+                                     jnp.where(jnp.arange(6) == STAY, 20.0, 0.0)),
+                           20.0 * out.pi.logits / 10.0)
+        return out._replace(pi=Categorical(logits))
+
+
+def test_deepltl_samples_its_actions_on_infinite_specs_on_every_world():
+    # the original hard-codes sampled actions for infinite tasks (eval_test_tasks_infinite.py),
+    # Zone included, where finite tasks take the mode: the mode never jumps at p = 0.4
+    from types import SimpleNamespace
+
+    from specrl_jax.benchmark import experiment
+
+    world = StayWorld(TinyConfig(grid_size=5, num_letters=3))
+    method = SimpleNamespace(network=HesitantScript(world.alphabet))
+    reference = experiment.make_policy("deepltl", world, method, world_family="zone")
+    table = _outcomes(reference, 45)
+    assert not np.asarray(table.violation).any()
+    assert (np.asarray(table.num_accepting) > 0).all(), table.num_accepting
+    mode = experiment.make_policy("deepltl", world, method, deterministic=True, world_family="zone")
+    assert not np.asarray(_outcomes(mode, 45).num_accepting).any()

@@ -7,7 +7,7 @@ from test_reproduce import CELL, Fakes
 
 from specrl_jax import cli
 from specrl_jax.benchmark import grid, report, reproduce
-from specrl_jax.benchmark.store import Store
+from specrl_jax.benchmark.store import Store, mark_stale
 
 MEASUREMENTS = """
 - section: Worlds
@@ -90,6 +90,15 @@ def test_report_renders_a_tiny_store_deterministically(tmp_path):
     assert "](figures/robot_dynamics_observation.png)" in page
     assert "trajectories_CarLTL0-v0.png" in names  # the Car cell recorded episodes
     assert "](figures/trajectories_CarLTL0-v0.png)" in page
+    # an entry scored by an earlier test-time agent: marked, with the reason, and work to redo
+    record = store.read(CELL.name)
+    record["suites"]["letter/infinite/rsp"] = mark_stale(record["suites"]["letter/infinite/rsp"],
+                                                         "scored with mode actions")
+    store.write(CELL.name, record)
+    report.render(store, tmp_path / "c" / "results.md", measurements=tmp_path / "m.yaml")
+    world = (tmp_path / "c" / "results" / "LetterLTL0-v0.md").read_text()
+    rsp = world[world.index("## letter/infinite/rsp"):world.index("## letter/infinite/rec")]
+    assert "| GenZ-LTL **(partial: letter/infinite/rsp to run)** †" in rsp and "† GenZ-LTL: scored with mode actions;" in rsp
 
 
 def test_report_command(tmp_path):

@@ -59,7 +59,7 @@ def test_suite_versions_mark_entries_scored_before_the_epsilon_fall_back():
 
 def test_a_suite_scored_under_an_older_version_is_work_to_redo():
     from specrl_jax import specs
-    from specrl_jax.benchmark.store import missing_work
+    from specrl_jax.benchmark.store import mark_stale, missing_work
 
     cell = grid.cell("PointLTL0-v0/genz")
     record = {"training": {"complete": True}, "suites": {
@@ -70,3 +70,7 @@ def test_a_suite_scored_under_an_older_version_is_work_to_redo():
     assert missing_work(cell, record) == ["zone/infinite/per"]
     del record["suites"]["zone/infinite/per"]["suite_version"]  # stored before versions
     assert missing_work(cell, record) == ["zone/infinite/per"]
+    record["suites"]["zone/infinite/per"]["suite_version"] = specs.suite_version("zone/infinite/per")
+    rsp = record["suites"]["zone/infinite/rsp"]
+    record["suites"]["zone/infinite/rsp"] = mark_stale(rsp, "scored by an earlier agent")
+    assert missing_work(cell, record) == ["zone/infinite/rsp"]  # the agent changed since

@@ -239,9 +239,15 @@ def threshold_avoid(spec: Any, q: jax.Array, values: jax.Array, valid: jax.Array
 
 
 def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: dict[str, str],
-                deterministic: bool = False, value_threshold: float | None = 0.4) -> StatefulPolicy:
+                deterministic: bool = False, value_threshold: float | None = 0.4,
+                deterministic_infinite: bool = False) -> StatefulPolicy:
     """DeepLTL's test-time agent: the candidate sequence of highest critic value, chosen again
     whenever the automaton state changes; stochastic actions by default (the Letter setting).
+
+    `deterministic` sets the action mode on co-safe specs, `deterministic_infinite` on the
+    others: the original samples every infinite task, on every world, epsilon action included
+    (`eval_test_tasks_infinite.py` hard-codes `deterministic = False`; docs/fidelity.md, DeepLTL
+    "Infinite suites"). The mode takes the epsilon action only where its probability passes 0.7.
 
     `value_threshold` (the original's 0.4): the chosen sequence's first avoid set also gets every
     other non-self-loop transition whose best candidate value is more than this below the chosen
@@ -286,8 +292,13 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: dict[str, st
         due = task_state.q != carry.q
         carry = select_tree(due, plan(params, obs, task_state, due), carry)
         pi = network.apply(params, seq_obs(obs, task_state, carry.candidate, carry.extra_avoid)).pi
-        action, take_epsilon = split(pi.mode() if deterministic else pi.sample(key))
         spec = task_state.spec
+        if deterministic == deterministic_infinite:  # static: one mode for every spec
+            output = pi.mode() if deterministic else pi.sample(key)
+        else:
+            use_mode = jnp.where(spec.is_finite, deterministic, deterministic_infinite)
+            output = jnp.where(use_mode, pi.mode(), pi.sample(key))
+        action, take_epsilon = split(output)
         slot = spec.pair_epsilon_slot[spec.seq_pair[task_state.q, carry.candidate, 0]]
         return (action, jnp.where(take_epsilon, slot, -1)), carry
 
@@ -296,5 +307,5 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: dict[str, st
 
 SPEC = MethodSpec(
     name="deepltl", title="DeepLTL", make_method=make_method, ppo_config=ppo_config,
-    make_policy=make_policy, summarise=summarise,
+    make_policy=make_policy, summarise=summarise, deterministic_infinite=lambda family: False,
 )
