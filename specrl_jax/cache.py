@@ -2,23 +2,25 @@
 
 `SPECRL_JAX_CACHE_DIR` names the root (default `~/.cache/specrl_jax`): JAX's persistent
 compilation cache lives in `<root>/jax`, compiled automata in `<root>/automata`, reset banks in
-`<root>/banks`, the methods' set-up tables (RAD's) in `<root>/tables`. Set it to `off`
-(or `0`, `false`, `no`, `none`) to use neither. Importing `specrl_jax` switches JAX's cache on
-(`enable_jax_cache`), so a new process reuses the compiled resets and steps of earlier ones,
-unless JAX's cache directory was configured already (`JAX_COMPILATION_CACHE_DIR` or
-`jax.config`), which is then left alone. Library users keep JAX's threshold (programs compiling in
-under 1 s are not stored); the `specrl-jax` command stores every program (`CLI_MIN_COMPILE_SECONDS`),
-so that a second identical run compiles nothing. `JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS`
-overrides both.
+`<root>/banks`, the methods' set-up tables (RAD's tables, GCRL-LTL's direction primitives) in
+`<root>/tables`, the training runs' traced programs (`baselines.programs`) in `<root>/programs`.
+Set it to `off` (or `0`, `false`, `no`, `none`) to use none. Importing `specrl_jax` switches
+JAX's cache on (`enable_jax_cache`), so a new process reuses the compiled resets and steps of
+earlier ones, unless JAX's cache directory was configured already (`JAX_COMPILATION_CACHE_DIR`
+or `jax.config`), which is then left alone. Library users keep JAX's threshold (programs
+compiling in under 1 s are not stored); the `specrl-jax` command stores every program
+(`CLI_MIN_COMPILE_SECONDS`), so that a second identical run compiles nothing.
+`JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS` overrides both.
 """
 
 from __future__ import annotations
 
+import functools
 import os
 import sys
 import tempfile
 import zipfile
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     import numpy as np
@@ -59,8 +61,14 @@ def banks_dir() -> str | None:
 
 
 def tables_dir() -> str | None:
-    """Directory of the methods' cached set-up tables (RAD's DFA banks and embeddings), or None."""
+    """Directory of the methods' cached set-up tables (RAD's DFA banks and embeddings, GCRL-LTL's
+    direction primitives), or None."""
     return _below_root("tables")
+
+
+def programs_dir() -> str | None:
+    """Directory of the traced programs of training runs (`baselines.programs`), or None (off)."""
+    return _below_root("programs")
 
 
 def digest(payload: dict, source_folders: tuple[str, ...] = ()) -> str:
@@ -76,6 +84,55 @@ def digest(payload: dict, source_folders: tuple[str, ...] = ()) -> str:
             sources.update(path.read_bytes())
     text = json.dumps({**payload, "sources": sources.hexdigest()}, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+@functools.cache
+def package_digest() -> str:
+    """Hex digest of every file of the specrl_jax package (sources and shipped data, without
+    bytecode and `benchmark/results`, results rather than inputs): changed by any change of it."""
+    import hashlib
+    import pathlib
+
+    package = pathlib.Path(__file__).resolve().parent
+    results = package / "benchmark" / "results"
+    files = hashlib.sha256()
+    for path in sorted(package.rglob("*")):
+        if path.is_file() and "__pycache__" not in path.parts and results not in path.parents:
+            files.update(str(path.relative_to(package)).encode() + b"\0" + path.read_bytes())
+    return files.hexdigest()
+
+
+def in_package(*objects: Any) -> bool:
+    """Whether each object (a class, function or instance) is defined in the specrl_jax package,
+    whose files `package_digest` covers (a user's registered method or world is not)."""
+    modules = (getattr(o, "__module__", None) or type(o).__module__ for o in objects)
+    return all(m == __package__ or m.startswith(f"{__package__}.") for m in modules)
+
+
+#: the distributions whose versions name a cache entry of computed results or traced programs
+DISTRIBUTIONS = ("jax", "jaxlib", "numpy", "flax", "optax", "chex", "mujoco", "mujoco-mjx",
+                 "warp-lang", "spottl")
+
+
+def runtime() -> dict:
+    """What besides the inputs and the package decides a computed result or a traced program:
+    the versions of `DISTRIBUTIONS` (None: not installed), JAX's settings (less its caches' and
+    logging's), and the devices (platform, kind, count) and processes."""
+    from importlib import metadata
+
+    import jax
+
+    def version(name: str) -> str | None:
+        try:
+            return metadata.version(name)
+        except metadata.PackageNotFoundError:
+            return None
+
+    settings = {k: v for k, v in jax.config.values.items()
+                if not any(word in k for word in ("cache", "log_compiles", "explain"))}
+    return {"versions": {name: version(name) for name in DISTRIBUTIONS}, "jax_config": settings,
+            "devices": [(d.platform, d.device_kind) for d in jax.devices()],
+            "processes": jax.process_count()}
 
 
 def load_arrays(directory: str | None, name: str) -> dict[str, np.ndarray] | None:
@@ -106,6 +163,32 @@ def save_arrays(directory: str | None, name: str, arrays: dict[str, np.ndarray])
         os.replace(tmp, os.path.join(directory, name + ".npz"))
     except OSError:
         return
+
+
+def load_tree(directory: str | None, name: str, template: Any) -> Any | None:
+    """`template`'s tree holding the arrays of `<directory>/<name>.npz` (`save_tree`), or None
+    (no directory, missing, unreadable, or of other leaves, shapes or dtypes)."""
+    import jax  # here, not at the top: `import specrl_jax` stays light
+
+    stored = load_arrays(directory, name)
+    leaves, structure = jax.tree.flatten(template)
+    if stored is None or len(stored) != len(leaves):
+        return None
+    read = [stored.get(f"leaf_{i}") for i in range(len(leaves))]
+    if any(r is None or r.shape != tuple(x.shape) or r.dtype != x.dtype
+           for r, x in zip(read, leaves)):
+        return None
+    return jax.tree.unflatten(structure, [jax.numpy.asarray(r) for r in read])
+
+
+def save_tree(directory: str | None, name: str, tree: Any) -> None:
+    """Write the arrays of `tree` to `<directory>/<name>.npz` (`save_arrays`), read back into
+    its structure by `load_tree`."""
+    import jax  # here, not at the top: `import specrl_jax` stays light
+    import numpy as np
+
+    leaves = jax.device_get(jax.tree.leaves(tree))
+    save_arrays(directory, name, {f"leaf_{i}": np.asarray(x) for i, x in enumerate(leaves)})
 
 
 def enable_jax_cache(min_compile_seconds: float | None = None) -> str | None:

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import argparse
 import ast
+import atexit
+import gc
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -134,15 +136,35 @@ def join_processes(args: argparse.Namespace) -> None:
     hosts.join(hosts.process_group(args.coordinator, args.num_processes, args.process_id))
 
 
-def announce_world_loading(env_id: str) -> None:
-    """Say on stderr that the MuJoCo worlds' modules are loading, for an ID of one, unless they
-    are loaded: importing MuJoCo MJX (with MuJoCo Warp where installed) takes 5-15 s on a CPU."""
-    if not env_id.startswith("Letter") and "mujoco.mjx" not in sys.modules:
-        print("loading the world modules (MuJoCo MJX: seconds) ...", file=sys.stderr, flush=True)
+def load_world_modules(env_id: str, own_process: bool = False) -> None:
+    """Import MuJoCo MJX for an ID of a MuJoCo world, unless loaded, saying so on stderr:
+    importing it (with MuJoCo Warp where installed) takes 5-15 s on a CPU. In a process of its
+    own (`own_process`: the `specrl-jax` script, not a caller's `main([...])`) the garbage
+    collector pauses meanwhile and then freezes what is alive (`gc.freeze`): Python's full
+    collections, run whenever the heap grows by a quarter, would walk the ~600,000 objects of
+    MJX and JAX again and again (about a second on a CPU)."""
+    if env_id.startswith("Letter") or "mujoco.mjx" in sys.modules:
+        return
+    print("loading the world modules (MuJoCo MJX: seconds) ...", file=sys.stderr, flush=True)
+    if own_process:
+        gc.disable()
+    try:
+        from specrl_jax.envs.zone import mjx_import  # noqa: F401
+    finally:
+        if own_process:
+            gc.freeze()
+            gc.enable()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """The command line `argv` (None: the process's own, `sys.argv[1:]`); returns the exit
+    status."""
     args = build_parser().parse_args(argv)
+    args.own_process = argv is None
+    if args.own_process:
+        # The exit skips Python's final garbage collections (a second or two after importing
+        # MJX): the process ends, and the operating system takes its memory back.
+        atexit.register(gc.freeze)
     try:
         return args.run(args)
     except KeyboardInterrupt as err:
@@ -331,7 +353,7 @@ def train_command(args: argparse.Namespace) -> int:
     from specrl_jax.eval import report
 
     platform = jax.devices()[0].platform
-    announce_world_loading(args.env)
+    load_world_modules(args.env, args.own_process)
     world_family = experiment.family(args.env)
     total = args.total_steps or families.default_total_steps(platform)
     overrides = experiment.default_overrides(platform, total, world_family, args.method)

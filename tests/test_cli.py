@@ -26,18 +26,27 @@ def test_eval_end_to_end(tmp_path, capsys):
         assert (tmp_path / plot).stat().st_size > 5_000
 
 
-def test_train_gcrl_end_to_end(tmp_path):
+def test_train_gcrl_end_to_end(tmp_path, monkeypatch, capsys):
     """`specrl-jax train` on a method with a phase after PPO (GCRL-LTL's value function from the
     policy's trajectories) writes both networks and evaluates every Letter suite with them, at the
-    network widths given as method options."""
+    network widths given as method options. An identical second run reads its three traced
+    programs from the disk cache and trains the same parameters."""
     from flax import serialization
 
-    code = cli.main(["train", "--method", "gcrl", "--env", "LetterLTL0-v0", "--total-steps", "512",
-                     "--num-envs", "8", "--num-steps", "16", "--map-bank", "64",
-                     "--method-option", "trunk=(32,)", "--method-option", "value_features=(16, 16)",
-                     "--eval-episodes", "1", "--out", str(tmp_path)])
-    assert code == 0
-    stored = serialization.msgpack_restore((tmp_path / "params.msgpack").read_bytes())
+    from specrl_jax import cache
+
+    programs = tmp_path / "programs"  # the first run traces its programs
+    monkeypatch.setattr(cache, "programs_dir", lambda: str(programs))
+    argv = ["train", "--method", "gcrl", "--env", "LetterLTL0-v0", "--total-steps", "512",
+            "--num-envs", "8", "--num-steps", "16", "--map-bank", "64",
+            "--method-option", "trunk=(32,)", "--method-option", "value_features=(16, 16)"]
+    code = cli.main([*argv, "--eval-episodes", "1", "--out", str(tmp_path)])
+    assert code == 0 and "program cache" not in capsys.readouterr().out
+    assert cli.main([*argv, "--out", str(tmp_path / "again")]) == 0
+    assert capsys.readouterr().out.count("traced program read from the program cache") == 3
+    params = (tmp_path / "params.msgpack").read_bytes()
+    assert (tmp_path / "again" / "params.msgpack").read_bytes() == params
+    stored = serialization.msgpack_restore(params)
     assert set(stored) == {"policy", "gcvf"}
     assert stored["gcvf"]["params"]["Dense_1"]["kernel"].shape[-2:] == (16, 16)
     results = json.loads((tmp_path / "eval.json").read_text())["results"]

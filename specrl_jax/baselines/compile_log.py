@@ -9,9 +9,11 @@ from typing import Any
 
 import jax
 
+from specrl_jax.baselines import programs
+
 
 def compile_logged(fn: Callable, args: tuple, what: str, log: Callable[[str], None] | None = None,
-                   **jit_options: Any) -> Callable:
+                   program_key: str | None = None, **jit_options: Any) -> Callable:
     """`jax.jit(fn, **jit_options)` compiled ahead of time for `args`.
 
     Args:
@@ -20,7 +22,11 @@ def compile_logged(fn: Callable, args: tuple, what: str, log: Callable[[str], No
         what: what compiles, for the messages ("the training step").
         log: hears "compiling <what> ..." and "compiled <what> in N s" (seconds when JAX's
             persistent cache holds it); None: silent.
-        **jit_options: `jax.jit` options (`static_argnums`, `donate_argnums`, ...).
+        program_key: with `what`, names the traced program in the disk cache
+            (`baselines.programs`): a digest of everything `fn` computes with beyond its
+            arguments; None: traced every time.
+        **jit_options: `jax.jit` options (`static_argnums`, `donate_argnums`, ...; with
+            `program_key` only these two).
 
     Returns:
         The compiled executable; it takes `args` less the static ones.
@@ -28,7 +34,12 @@ def compile_logged(fn: Callable, args: tuple, what: str, log: Callable[[str], No
     if log is not None:
         log(f"compiling {what} ...")
     start = time.perf_counter()
-    compiled = jax.jit(fn, **jit_options).lower(*args).compile()
+    read = False
+    if program_key is None:
+        compiled = jax.jit(fn, **jit_options).lower(*args).compile()
+    else:
+        compiled, read = programs.compile_cached(fn, args, f"{program_key} {what}", **jit_options)
     if log is not None:
-        log(f"compiled {what} in {time.perf_counter() - start:.0f} s")
+        how = " (its traced program read from the program cache)" if read else ""
+        log(f"compiled {what} in {time.perf_counter() - start:.0f} s{how}")
     return compiled

@@ -115,12 +115,14 @@ def seed_batched(trainer: Trainer, num_seeds: int) -> Callable:
 
 
 def init_seeds(trainer: Trainer, key: jax.Array, num_seeds: int,
-               log: Callable[[str], None] | None = None) -> RunnerState:
-    """`num_seeds` initial runner states from `key`, stacked on a leading seed axis."""
+               log: Callable[[str], None] | None = None, program_key: str | None = None
+               ) -> RunnerState:
+    """`num_seeds` initial runner states from `key`, stacked on a leading seed axis;
+    `program_key` names the traced program on disk (`compile_logged`)."""
     keys = jax.random.split(key, num_seeds)
     # Seeds are initialised one by one: a vmapped orthogonal init (batched QR) hangs on XLA:CPU.
     init = compile_logged(trainer.init, (keys[0],), "the initial state (env reset, network init)",
-                          log)
+                          log, program_key)
     seeds = [init(k) for k in keys]
     # one program for the whole tree: stacking leaf by leaf compiles one per leaf shape
     return jax.jit(lambda *trees: jax.tree.map(lambda *xs: jnp.stack(xs), *trees))(*seeds)
@@ -128,19 +130,21 @@ def init_seeds(trainer: Trainer, key: jax.Array, num_seeds: int,
 
 def train_chunks(trainer: Trainer, runner: RunnerState, num_seeds: int, chunk_updates: int,
                  total: int, first_chunk: int | None = None,
-                 log: Callable[[str], None] | None = None
+                 log: Callable[[str], None] | None = None, program_key: str | None = None
                  ) -> Iterator[tuple[RunnerState, dict[str, Any], int, int]]:
     """The one training driver: from `runner`'s update (seed axis first) to `total`, in chunks of
     at most `chunk_updates` updates (the first of at most `first_chunk`, e.g. 1 to report the
     update that included compilation at once). Yields `(runner, metrics [seeds, chunk_updates]
     on the host, updates in this chunk, updates done)` after each chunk, so callers log,
-    checkpoint or stop; `log` hears what compiles and how long it took."""
+    checkpoint or stop; `log` hears what compiles and how long it took; `program_key` names the
+    traced program on disk (`compile_logged`)."""
     done = int(runner.update[0])
     if done >= total:
         return
     # One compiled chunk for every chunk: a shorter chunk runs the same scan, partly idle.
     updates = compile_logged(seed_batched(trainer, num_seeds), (runner, chunk_updates, jnp.int32(1)),
-                             "the training step", log, static_argnums=1, donate_argnums=0)
+                             "the training step", log, program_key, static_argnums=1,
+                             donate_argnums=0)
     size = min(first_chunk or chunk_updates, chunk_updates)
     while done < total:
         n = min(size, total - done)
@@ -163,6 +167,7 @@ def train_in_run_dir(
     max_wall_s: float | None = None,
     restart: bool = False,
     first_chunk: int | None = None,
+    program_key: str | None = None,
 ) -> RunnerState:
     """Train `num_seeds` runs of `trainer` side by side (`vmap`) in chunks of `chunk_updates`,
     resuming from `run_dir` when it holds a checkpoint.
@@ -170,8 +175,9 @@ def train_in_run_dir(
     `summarise` derives extra scalars per update and seed (e.g. rates); `max_updates` and
     `max_wall_s` (this session's seconds, checked after each chunk) stop early, resumable;
     `first_chunk` bounds the session's first chunk (1: the update that includes compilation is
-    reported as soon as it ends). Ctrl-C raises `TrainingInterrupted` naming the checkpointed
-    update. Rows'
+    reported as soon as it ends); `program_key` names the traced programs on disk, so that a
+    second identical run does not trace them (`compile_logged`). Ctrl-C raises
+    `TrainingInterrupted` naming the checkpointed update. Rows'
     `wall_s` is training time summed over sessions (a resumed run continues the clock of the
     checkpoint's update), so rates and times to a level stay on one clock. A run directory is
     resumed only when its `config.json` equals this run's settings (else `ValueError` names the
@@ -190,7 +196,7 @@ def train_in_run_dir(
     log = hosts.writer_log(log)
     if writer:
         _start_run_dir(run_dir, config, restart)
-    runner = init_seeds(trainer, key, num_seeds, log)
+    runner = init_seeds(trainer, key, num_seeds, log, program_key)
     hosts.barrier("run directory ready")
     wall_before = 0.0
     if (run_dir / CHECKPOINT).exists():
@@ -206,7 +212,7 @@ def train_in_run_dir(
     try:
         with open(run_dir / "metrics.jsonl", "a") if writer else contextlib.nullcontext() as out:
             chunks = train_chunks(trainer, runner, num_seeds, chunk_updates, total, first_chunk,
-                                  log)
+                                  log, program_key)
             rate_from = None  # after the first chunk: rates since it ended, without compilation
             for runner, metrics, n, done in chunks:
                 elapsed = time.perf_counter() - start_wall

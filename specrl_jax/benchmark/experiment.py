@@ -9,6 +9,7 @@ mean and std over the seeds.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import os
 import time
@@ -20,7 +21,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from specrl_jax import families, specs
+from specrl_jax import cache, families, specs
 from specrl_jax.baselines import hosts, runs
 from specrl_jax.baselines.params_io import load_params as read_params
 from specrl_jax.baselines.params_io import load_params_into, save_params
@@ -28,6 +29,7 @@ from specrl_jax.baselines.ppo import PPOConfig, env_mesh, make_train
 from specrl_jax.baselines.spec import get_method
 from specrl_jax.envs import bank_cache
 from specrl_jax.envs.registry import make
+from specrl_jax.tasks.sources import ByContent
 
 SUCCESS_LEVELS = (0.5, 0.8, 0.9, 0.95, 0.98)
 #: a run directory's file holding the result of the method's phase before PPO (GCRL-LTL's
@@ -119,6 +121,37 @@ def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int
     return world, params, method_obj, config
 
 
+def program_key(method: str, run_config: dict[str, Any], world: Any, params: Any,
+                method_obj: Any, mesh: Any, method_options: dict[str, Any] | None = None
+                ) -> str | None:
+    """The digest naming a training's traced programs on disk (`baselines.programs`): the run's
+    settings (`runs.run_config`), the world's config and data (its params, the map bank among
+    them), the arrays of the method object's fields (GCRL-LTL's primitives, a pretrained
+    encoder), the files that options name, every file of the package, the versions, JAX's
+    settings and the device. None with caching off, on several devices (`programs` keeps
+    single-device programs), and where a program may run code outside the package (a method
+    or world registered by the user), which no digest here sees."""
+    spec = get_method(method)
+    if (cache.programs_dir() is None or mesh.size > 1
+            or not cache.in_package(type(world), spec.make_method)):
+        return None
+    method_data = {}
+    for field in dataclasses.fields(method_obj):
+        value = getattr(method_obj, field.name)
+        leaves = jax.tree.leaves(value)
+        if leaves and all(isinstance(x, (jax.Array, np.ndarray)) for x in leaves):
+            method_data[field.name] = ByContent(value).digest
+    files = {name: hashlib.sha256(Path(value).read_bytes()).hexdigest()
+             for name, value in (method_options or {}).items()
+             if name in FILE_OPTIONS and isinstance(value, (str, os.PathLike))
+             and Path(value).is_file()}
+    return cache.digest({
+        "run": run_config, "world": f"{type(world).__module__}.{type(world).__qualname__}",
+        "world_config": repr(getattr(world, "config", None)), "params": ByContent(params).digest,
+        "method_data": method_data, "files": files, "package": cache.package_digest(),
+        "runtime": cache.runtime(), "device": mesh.devices.flat[0].id})
+
+
 def trained_steps(config: PPOConfig) -> int:
     """Env steps per seed a training of `config` takes: whole updates of `batch_size`."""
     return config.num_updates * config.batch_size
@@ -178,6 +211,8 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         if restart and saved is not None:
             saved.unlink(missing_ok=True)
         method_obj = spec.prepare_training(method_obj, key_train, config, log, saved)
+    programs = program_key(method, runs.run_config(config, num_seeds, extra_config), world,
+                           params, method_obj, mesh, method_options)
     setup = time.perf_counter() - start
     log(f"set up {env_id} in {setup:.1f}s; training {spec.title}, {num_seeds} x "
         f"{trained_steps(config):,} env steps ({config.num_updates:,} updates of "
@@ -190,12 +225,13 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     runner = runs.train_in_run_dir(
         trainer, key_train, run_dir, chunk_updates, num_seeds, extra_config=extra_config,
         summarise=spec.summarise, log=log, max_wall_s=budget, restart=restart, first_chunk=1,
+        program_key=programs,
     )
     wall = time.perf_counter() - start
     rows = runs.read_metrics(run_dir)
     params, updates = hosts.host_copy((runner.params, runner.update))
     if spec.finish_training is not None:  # a phase on the trained policy (GCRL-LTL's values)
-        params = spec.finish_training(method_obj, params, key_train, config, log)
+        params = spec.finish_training(method_obj, params, key_train, config, log, programs)
     summary = {
         "method": method, "env": env_id, "num_seeds": num_seeds, "ppo": dataclasses.asdict(config),
         "env_steps_per_seed": rows[-1]["env_steps"] if rows else 0,

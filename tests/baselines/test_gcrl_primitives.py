@@ -1,12 +1,14 @@
 """GCRL-LTL's direction primitives on a stub plane world: the training reward against a
 hand-computed value, the auto-reset at the primitives' horizon, the hierarchical world's action,
-and the safety rule summing two primitives."""
+the safety rule summing two primitives, and the primitives kept in the run directory and in the
+disk cache."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from specrl_jax import cache
 from specrl_jax.baselines import gcrl
 from specrl_jax.baselines.gcrl import primitives as prim
 from specrl_jax.baselines.ppo.networks import Categorical, PolicyOutput
@@ -150,6 +152,7 @@ def test_a_run_directory_keeps_the_primitives_for_a_resumed_run(monkeypatch, tmp
     them back and acts through the same parameters."""
     import specrl_jax
 
+    monkeypatch.setenv(cache.ENV_VAR, str(tmp_path / "cache"))  # the fake primitives stay here
     world, params = specrl_jax.make("PointLTL0-v0")
     method = gcrl.make_method(world, params, trunk=(8,), value_features=(8,))
     trained = jax.tree.map(lambda x: x + 1.0, method.primitives)
@@ -163,3 +166,41 @@ def test_a_run_directory_keeps_the_primitives_for_a_resumed_run(monkeypatch, tmp
     for a, b, c in zip(*map(jax.tree.leaves, (trained, first.primitives, resumed.primitives))):
         np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(a, c)
+
+
+def test_an_identical_training_reads_the_primitives_from_the_disk_cache(monkeypatch, tmp_path):
+    """`cached_primitives` trains once per distinct input: an identical call reads the
+    primitives back, equal to those trained, and says so; another key, world params or PPO
+    setting trains again, and a world defined outside the package trains every time."""
+    monkeypatch.setenv(cache.ENV_VAR, str(tmp_path))
+    template = prim.init_primitives(_PlaneWorld(), jax.random.key(0))
+    trained = []
+
+    def train(world, params, key, config, log):  # stands for the PPO run (tested above)
+        trained.append(key)
+        leaves, structure = jax.tree.flatten(template)
+        keys = jax.random.split(jax.random.key(len(trained)), len(leaves))
+        return jax.tree.unflatten(structure, [jax.random.normal(k, x.shape, x.dtype)
+                                              for k, x in zip(keys, leaves)])
+
+    monkeypatch.setattr(prim, "train_primitives", train)
+    in_package = cache.in_package
+    monkeypatch.setattr(cache, "in_package", lambda *objects: True)  # as a world of the package
+    cfg = prim.ppo_config(1000)
+    lines = []
+    first, again = (prim.cached_primitives(_PlaneWorld(), _Params(), jax.random.key(0), cfg,
+                                           template, lines.append) for _ in range(2))
+    assert len(trained) == 1 and lines[-1].startswith("direction primitives read from the cache")
+    assert jax.tree.structure(again) == jax.tree.structure(template)
+    for a, b in zip(jax.tree.leaves(first), jax.tree.leaves(again)):
+        assert a.dtype == b.dtype
+        np.testing.assert_array_equal(a, b)
+    for world_params, key, config in ((_Params(), jax.random.key(1), cfg),
+                                      (_Params(max_steps=999), jax.random.key(0), cfg),
+                                      (_Params(), jax.random.key(0), prim.ppo_config(2000))):
+        prim.cached_primitives(_PlaneWorld(), world_params, key, config, template, lines.append)
+    assert len(trained) == 4
+    monkeypatch.setattr(cache, "in_package", in_package)
+    for _ in range(2):
+        prim.cached_primitives(_PlaneWorld(), _Params(), jax.random.key(0), cfg, template)
+    assert len(trained) == 6

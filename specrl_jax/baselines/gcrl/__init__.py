@@ -33,6 +33,7 @@ import numpy as np
 import optax
 
 from specrl_jax import families
+from specrl_jax.baselines.compile_log import compile_logged
 from specrl_jax.baselines.encoders import ImageCNN, check_kinds, obs_parts
 from specrl_jax.baselines.gcrl import primitives as primitives_lib
 from specrl_jax.baselines.gcrl import search
@@ -360,25 +361,31 @@ def prepare_training(method: GCRL, key: jax.Array, config: PPOConfig,
     """Before PPO: train the direction primitives of a robot world (one primitive step per 15
     training steps, at most 1M each; 15M: 1M) and return the method acting through them.
     `saved`: the primitives' file in the run directory, read when there (a resumed run),
-    else written."""
+    else written; an identical run's primitives are read from the disk cache
+    (`primitives.cached_primitives`)."""
     if method.primitives is None:
         return method
     steps = int(min(primitives_lib.MAX_STEPS, max(1, config.total_timesteps // 15)))
-    trained = kept_params(saved, lambda: primitives_lib.train_primitives(
+    trained = kept_params(saved, lambda: primitives_lib.cached_primitives(
         method.world, method.env.params, jax.random.fold_in(key, 4),
-        primitives_lib.ppo_config(steps), log), method.primitives, "direction primitives", log)
+        primitives_lib.ppo_config(steps), method.primitives, log), method.primitives,
+        "direction primitives", log)
     return make_method(method.world, method.env.params, method.family, method.network.trunk,
                        method.value_network.features, primitives=trained)
 
 
 def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig,
-                    log: Callable[[str], None] = print) -> dict[str, Any]:
+                    log: Callable[[str], None] = print, program_key: str | None = None
+                    ) -> dict[str, Any]:
     """After PPO: train each seed's GCVF (leading seed axis on `params`); returns
-    `{"policy": params, "gcvf": gcvf params}`, what `make_policy` reads."""
+    `{"policy": params, "gcvf": gcvf params}`, what `make_policy` reads. `program_key` names
+    the traced program on disk (`compile_logged`)."""
     cfg = value_config(method, config.total_timesteps)
     num_seeds = jax.tree.leaves(params)[0].shape[0]
     keys = jax.random.split(jax.random.fold_in(key, 15), num_seeds)
-    train = jax.jit(jax.vmap(lambda p, k: train_value_function(method, p, k, cfg)))
+    train = compile_logged(jax.vmap(lambda p, k: train_value_function(method, p, k, cfg)),
+                           (params, keys), "the GCVF's data collection and fit", log,
+                           program_key)
     gcvf, stats = jax.device_get(train(params, keys))
     log(f"GCVF: {cfg.num_updates} updates on {[int(s) for s in stats['samples']]} samples per "
         f"seed; L1 loss {np.round(stats['loss_first'], 4).tolist()} -> "

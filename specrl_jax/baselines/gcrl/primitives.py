@@ -23,12 +23,14 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from specrl_jax import cache
 from specrl_jax.baselines.ppo.networks import MLP, DiagGaussian, PolicyOutput, critic, dense
 from specrl_jax.baselines.ppo.rollout import StepResult
 from specrl_jax.baselines.ppo.train import Method, PPOConfig, make_train
 from specrl_jax.baselines.runs import init_seeds, train_chunks
 from specrl_jax.envs.spaces import Discrete
 from specrl_jax.envs.wrappers import Wrapper, reset_done
+from specrl_jax.tasks.sources import ByContent
 
 #: float32[4, 2]: the directions pos_x, neg_x, pos_y, neg_y (world frame)
 DIRECTIONS = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]], np.float32)
@@ -159,6 +161,31 @@ def train_primitives(world: Any, params: Any, key: jax.Array, config: PPOConfig,
         f"mean speed along +x -x +y -y {np.round(speed[:, :tail].mean(1), 3).tolist()} -> "
         f"{np.round(speed[:, -tail:].mean(1), 3).tolist()} m/s")
     return runners.params
+
+
+def cached_primitives(world: Any, params: Any, key: jax.Array, config: PPOConfig, template: Any,
+                      log: Callable[[str], None] = print) -> Any:
+    """`train_primitives(world, params, key, config, log)`, read from the disk cache
+    (`cache.tables_dir()`, in `template`'s structure) when an identical training stored them
+    there; the entry is named by the world (class, config, physics and params, its reset bank
+    among them), the key, the PPO settings, every file of the package and the versions and
+    devices (`cache.runtime`). A world defined outside the package is trained every time."""
+    if not cache.in_package(type(world)):
+        return train_primitives(world, params, key, config, log)
+    name = "gcrl_primitives_" + cache.digest({
+        "world": f"{type(world).__module__}.{type(world).__qualname__}",
+        "config": repr(getattr(world, "config", None)),
+        "physics": getattr(getattr(world, "physics", None), "backend", None),
+        "params": ByContent(params).digest, "key": np.asarray(jax.random.key_data(key)).tolist(),
+        "ppo": dataclasses.asdict(config), "package": cache.package_digest(),
+        "runtime": cache.runtime()})
+    stored = cache.load_tree(cache.tables_dir(), name, template)
+    if stored is not None:
+        log(f"direction primitives read from the cache: {cache.tables_dir()}/{name}.npz")
+        return stored
+    trained = train_primitives(world, params, key, config, log)
+    cache.save_tree(cache.tables_dir(), name, trained)
+    return trained
 
 
 @struct.dataclass
