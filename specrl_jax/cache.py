@@ -110,7 +110,7 @@ def in_package(*objects: Any) -> bool:
 
 
 #: the distributions whose versions name a cache entry of computed results or traced programs
-DISTRIBUTIONS = ("jax", "jaxlib", "numpy", "flax", "optax", "chex", "mujoco", "mujoco-mjx",
+DISTRIBUTIONS = ("jax", "jaxlib", "numpy", "flax", "optax", "chex", "mujoco", "mujoco-core", "mujoco-mjx",
                  "warp-lang", "spottl")
 
 

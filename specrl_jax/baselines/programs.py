@@ -104,12 +104,16 @@ def _export(fn: Callable, args: tuple, static: tuple[int, ...], structure: Any, 
             return exported, out_structure[-1]
         except NotImplementedError:  # an effect without a serialised form (checkify's errors)
             pass
-    if serialised is None:
+    try:  # static metadata a pickle cannot carry (a local class): the program is not stored
+        structure_bytes = None if serialised is None else pickle.dumps(out_structure[-1])
+    except (pickle.PicklingError, AttributeError, TypeError):
+        structure_bytes = None
+    if structure_bytes is None:
         cache.save_arrays(cache.programs_dir(), name, {REFUSED: np.zeros(0)})
         return None
     cache.save_arrays(cache.programs_dir(), name, {
         "exported": np.frombuffer(serialised, np.uint8),
-        "out_structure": np.frombuffer(pickle.dumps(out_structure[-1]), np.uint8)})
+        "out_structure": np.frombuffer(structure_bytes, np.uint8)})
     return exported, out_structure[-1]
 
 
@@ -145,7 +149,14 @@ def compile_cached(fn: Callable, args: tuple, key: str, static_argnums: int | Se
         plain = jax.jit(fn, static_argnums=static, donate_argnums=donate)
         return plain.lower(*args).compile(), False
     exported, out_structure = loaded
-    compiled = jax.jit(exported.call, donate_argnums=donated).lower(*leaves).compile()
+    try:
+        compiled = jax.jit(exported.call, donate_argnums=donated).lower(*leaves).compile()
+    except Exception:
+        if not read:
+            raise
+        # a stored entry that does not fit these arguments (another platform): traced instead
+        plain = jax.jit(fn, static_argnums=static, donate_argnums=donate)
+        return plain.lower(*args).compile(), False
     expected = _describe(structure)
 
     def run(*call_args: Any) -> Any:

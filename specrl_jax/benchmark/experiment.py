@@ -116,6 +116,7 @@ def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int
     `map_bank` (families with a bank: LetterWorld, zones, the arm) draws training resets from a
     bank of that many exactly sampled layouts."""
     config = check_settings(method, env_id, ppo_overrides, method_options)
+    cache.package_digest()  # the code this run traces: an edit during set-up does not name it
     world, params = make(env_id, **(env_options or {}))
     params, method_obj = with_method(method, world, params, map_bank, key, method_options)
     return world, params, method_obj, config
@@ -129,11 +130,14 @@ def program_key(method: str, run_config: dict[str, Any], world: Any, params: Any
     them), the arrays of the method object's fields (GCRL-LTL's primitives, a pretrained
     encoder), the files that options name, every file of the package, the versions, JAX's
     settings and the device. None with caching off, on several devices (`programs` keeps
-    single-device programs), and where a program may run code outside the package (a method
-    or world registered by the user), which no digest here sees."""
+    single-device programs), where a program may run code outside the package (a method, its
+    hooks or a world registered by the user), which no digest here sees, and where an option is
+    an object rather than plain data (a network, a bank: its text need not name its content)."""
     spec = get_method(method)
+    hooks = [h for h in (spec.make_method, spec.prepare_training, spec.finish_training) if h]
     if (cache.programs_dir() is None or mesh.size > 1
-            or not cache.in_package(type(world), spec.make_method)):
+            or not cache.in_package(type(world), *hooks)
+            or not all(_plain(v) for v in (method_options or {}).values())):
         return None
     method_data = {}
     for field in dataclasses.fields(method_obj):
@@ -150,6 +154,15 @@ def program_key(method: str, run_config: dict[str, Any], world: Any, params: Any
         "world_config": repr(getattr(world, "config", None)), "params": ByContent(params).digest,
         "method_data": method_data, "files": files, "package": cache.package_digest(),
         "runtime": cache.runtime(), "device": mesh.devices.flat[0].id})
+
+
+def _plain(value: Any) -> bool:
+    """JSON-like data (numbers, strings, None, and lists, tuples and dicts of them)."""
+    if isinstance(value, (list, tuple)):
+        return all(_plain(v) for v in value)
+    if isinstance(value, dict):
+        return all(isinstance(k, str) and _plain(v) for k, v in value.items())
+    return value is None or isinstance(value, (bool, int, float, str, os.PathLike))
 
 
 def trained_steps(config: PPOConfig) -> int:

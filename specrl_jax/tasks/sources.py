@@ -67,6 +67,9 @@ class ByContent:
     def __eq__(self, other: object) -> bool:
         return type(other) is type(self) and self.digest == other.digest
 
+    def __repr__(self) -> str:  # names the content: tree-structure texts differ with it
+        return f"{type(self).__qualname__}({self.digest})"
+
 
 class SpecBank(ByContent):
     """The stacked specs that automaton tasks point into by `spec_index` (static metadata).

@@ -17,6 +17,7 @@ from specrl_jax import cache
 from specrl_jax.baselines import programs, runs
 from specrl_jax.baselines.ppo import env_mesh
 from specrl_jax.benchmark import experiment
+from specrl_jax.tasks.sources import ByContent
 
 
 @struct.dataclass
@@ -91,6 +92,21 @@ def test_static_metadata_of_a_default_repr_names_the_same_entry_in_every_run(
     assert read == [False, True]
 
 
+def test_static_metadata_compared_by_content_names_its_content(tmp_path, monkeypatch):
+    # a bank carried as static metadata is compiled into the program: other contents, another
+    # entry (not the program of the first bank)
+    monkeypatch.setenv(cache.ENV_VAR, str(tmp_path))
+
+    def scaled(t):
+        return t.replace(x=t.x * jnp.asarray(t.tag.tree))
+
+    for bank, read_before in ((np.ones(2), False), (np.full(2, 10.0), False), (np.ones(2), True)):
+        tagged = Tagged(jnp.ones(2), ByContent(bank))
+        compiled, read = programs.compile_cached(scaled, (tagged,), "k")
+        assert read is read_before
+        np.testing.assert_array_equal(compiled(tagged).x, bank)
+
+
 def test_a_program_export_refuses_compiles_as_before_and_is_not_exported_again(
         tmp_path, monkeypatch):
     monkeypatch.setenv(cache.ENV_VAR, str(tmp_path))
@@ -155,12 +171,15 @@ def test_the_program_key_changes_with_every_input_of_the_programs(tmp_path, monk
         with_file, key(options={"encoder": str(encoder)}),  # a file an option names
     ]
     assert len({base, *changed}) == 1 + len(changed)
+    # an option that is an object, not plain data (its text need not name its content)
+    assert key(options={"network": object()}) is None
     monkeypatch.setattr(cache, "package_digest", lambda: "another package")
     assert key() != base
-    # a method defined outside the package: its programs are traced every time
-    foreign = dataclasses.replace(experiment.get_method("ltl2action"),
-                                  make_method=lambda *args, **options: None)
-    monkeypatch.setattr(experiment, "get_method", lambda name: foreign)
-    assert key() is None
+    # a method defined outside the package, or with a hook from outside: traced every time
+    own = experiment.get_method("ltl2action")
+    for foreign in (dataclasses.replace(own, make_method=lambda *args, **options: None),
+                    dataclasses.replace(own, prepare_training=lambda *args: args[0])):
+        monkeypatch.setattr(experiment, "get_method", lambda name, spec=foreign: spec)
+        assert key() is None
     monkeypatch.setenv(cache.ENV_VAR, "off")
     assert key() is None
