@@ -116,7 +116,8 @@ def build(method: str, env_id: str, ppo_overrides: dict[str, Any], map_bank: int
     `map_bank` (families with a bank: LetterWorld, zones, the arm) draws training resets from a
     bank of that many exactly sampled layouts."""
     config = check_settings(method, env_id, ppo_overrides, method_options)
-    cache.package_digest()  # the code this run traces: an edit during set-up does not name it
+    if cache.programs_dir() is not None:  # the code this run traces, before a set-up edit
+        cache.package_digest()
     world, params = make(env_id, **(env_options or {}))
     params, method_obj = with_method(method, world, params, map_bank, key, method_options)
     return world, params, method_obj, config

@@ -140,11 +140,7 @@ DRIFT = 6
 def test_leaving_the_goal_after_the_jump_falls_back_and_the_agent_jumps_again():
     world = DriftWorld(TinyConfig(grid_size=5, num_letters=3))
     policy = genz.make_policy(GenZScript(), world.alphabet, world.obs_kinds, replan_steps=6)
-    short, long = _outcomes_in(world, policy, 30), _outcomes_in(world, policy, 60)
-    for table in (short, long):
-        assert not np.asarray(table.violation).any()
-        assert not np.asarray(table.aborted).any()
-    visits_short, visits_long = np.asarray(short.num_accepting), np.asarray(long.num_accepting)
+    visits_short, visits_long = _clean_visits(world, policy, 30, 60)
     # each drift costs a step back into 'a' and a jump: DRIFT - 2 of every DRIFT steps accept
     assert (visits_long - visits_short >= 30 * (DRIFT - 3) // DRIFT).all(), (visits_short, visits_long)
 
@@ -153,6 +149,18 @@ def _outcomes_in(world, policy, horizon: int):
     params = TinyParams(max_steps=horizon)
     return evaluate(policy, (world, params), [PERSISTENCE], seeds=[0], episodes_per_seed=6,
                     horizon=horizon).table
+
+
+def _clean_visits(world, policy, *horizons: int) -> list[np.ndarray]:
+    """Accepting visits per episode at each horizon, after checking that no episode violated
+    or was given up."""
+    visits = []
+    for horizon in horizons:
+        table = _outcomes_in(world, policy, horizon)
+        assert not np.asarray(table.violation).any()
+        assert not np.asarray(table.aborted).any()
+        visits.append(np.asarray(table.num_accepting))
+    return visits
 
 
 class StallWorld(StayWorld):
@@ -172,11 +180,7 @@ def test_genz_agent_keeps_the_epsilon_subgoal_through_a_timeout():
     # reaches 'a' stays open: the agent keeps its subgoal, arrives and stays
     world = StallWorld(TinyConfig(grid_size=5, num_letters=3))
     policy = genz.make_policy(GenZScript(), world.alphabet, world.obs_kinds, replan_steps=6)
-    short, long = _outcomes_in(world, policy, 30), _outcomes_in(world, policy, 55)
-    for table in (short, long):
-        assert not np.asarray(table.aborted).any()
-        assert not np.asarray(table.violation).any()
-    visits_short, visits_long = np.asarray(short.num_accepting), np.asarray(long.num_accepting)
+    visits_short, visits_long = _clean_visits(world, policy, 30, 55)
     # 'a' is at most 4 moves away once the stall ends, then one epsilon step
     assert (visits_short >= 30 - STALL - 4 - 1).all(), visits_short
     np.testing.assert_array_equal(visits_long - visits_short, 25)
