@@ -16,8 +16,7 @@ Resets (`--resets`):
   off    no auto-reset (the raw world step; world loop only).
 
 `--physics {auto,jax,warp}` and `--solver KEY=VALUE ...` set a Zone world's physics backend and
-solver fields; `--arm-newton while` runs an Arm world's constraint solve with `mjx.solve`'s own
-Newton loop instead of the fixed-count one (`envs/arm/newton.py`). `--determinism` also runs each measured rollout twice from one state and key and
+solver fields. `--determinism` also runs each measured rollout twice from one state and key and
 reports how many state elements differ (MuJoCo Warp's atomic adds on a GPU may differ in the last
 bits). Each figure is printed as one JSON row (`harness.row`) and appended to `--out` if given.
 
@@ -43,8 +42,6 @@ import harness
 import specrl_jax
 from specrl_jax import automata, families, specs
 from specrl_jax.envs import BatchedEnv, batch
-from specrl_jax.envs.arm import newton
-from specrl_jax.envs.zone.mjx_import import mjx
 from specrl_jax.tasks import TaskEnv
 
 LOOPS = ("world", "task")
@@ -78,8 +75,6 @@ def label(env_id: str, env: Any, loop: str, reset: str, args: argparse.Namespace
     if backend:
         settings.append(f"physics {backend}")
     settings += [f"{k}={v}" for k, v in args.solver.items()]
-    if env.family == "arm":
-        settings.append(f"Newton loop {args.arm_newton}")
     what = {"exact": "exact auto-reset", "bank": f"bank auto-reset ({args.bank_size:,} layouts)",
             "off": "raw step (no reset)"}[reset]
     return ", ".join([env_id, f"{loop} loop", what, *settings])
@@ -159,9 +154,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="Zone worlds' physics backend (default: the env's own, auto)")
     parser.add_argument("--solver", nargs="*", default=[], metavar="KEY=VALUE",
                         help="Zone worlds: overrides of the env's physics `Solver` fields")
-    parser.add_argument("--arm-newton", choices=["fixed", "while"], default="fixed",
-                        help="Arm worlds: the constraint solve's Newton loop, ours of fixed count "
-                             "(the default) or mjx.solve's while loop")
     parser.add_argument("--determinism", action="store_true",
                         help="also report whether each rollout repeats bit for bit")
     parser.add_argument("--out", default=None, help="append the JSON rows to this file")
@@ -179,8 +171,6 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main() -> None:
     args = parse_args()
     jax.config.update("jax_default_prng_impl", args.prng)
-    if args.arm_newton == "while":
-        newton.solve = mjx.solve  # this process measures MJX's own loop
     for env_id in args.envs:
         for loop in args.loops:
             for reset in args.resets:

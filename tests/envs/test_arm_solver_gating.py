@@ -9,12 +9,10 @@ import numpy as np
 import pytest
 
 from specrl_jax.envs.arm import model as arm_model
-from specrl_jax.envs.arm import newton
 from specrl_jax.envs.arm.collision import keep_contacts
 from specrl_jax.envs.arm.env import ACTION_SCALE
 from specrl_jax.envs.arm.physics import Physics, PhysicsState
 from specrl_jax.envs.zone import small_linalg
-from specrl_jax.envs.zone.mjx_import import mjx
 
 DISTMAX = 0.5
 
@@ -171,31 +169,3 @@ def _touching_and_free(model: mujoco.MjModel, touching: int, free: int, seed: in
     qvel = jnp.asarray(rng.uniform(-1, 1, qpos.shape), jnp.float32)
     state = PhysicsState(qpos=qpos, qvel=qvel, qacc_warmstart=zeros, qfrc_constraint=zeros)
     return state, jnp.asarray(rng.uniform(-1, 1, qpos.shape), jnp.float32)
-
-
-def test_fixed_count_newton_solve_equals_mjx_solve():
-    """`newton.solve` (a loop of the model's Newton iteration count, each arm kept once its own
-    stopping test holds) gives `mjx.solve`'s accelerations and constraint forces, under `vmap`
-    over 12 arms on the table and 4 free and for one arm alone; the arms stop after different
-    numbers of steps, so the per-arm keep matters."""
-    model = arm_model.load_model()
-    physics = Physics(model, arm_model.FORCE_LIMITS, solve_capacities=None, solve_pairs=None)
-    m = physics.model
-    state, action = _touching_and_free(model, 12, 4, seed=5)
-
-    def both(s, a):
-        data = physics.data(s).replace(qacc_warmstart=s.qacc_warmstart)
-        data = physics.accelerate(data, s.qpos + ACTION_SCALE * a, s.qfrc_constraint)
-        data = mjx.make_constraint(m, physics.collision.collide(m, data))
-        ours, theirs = newton.solve(m, data), mjx.solve(m, data)
-        fields = lambda d: (d.qacc, d.qfrc_constraint, d._impl.efc_force)
-        return fields(ours), fields(theirs), ours._impl.solver_niter
-
-    with small_linalg.small_cholesky():
-        ours, theirs, steps = jax.jit(jax.vmap(both))(state, action)
-        alone = jax.jit(both)(jax.tree.map(lambda x: x[0], state), action[0])
-    for got, want in [*zip(ours, theirs), *zip(alone[0], alone[1])]:
-        np.testing.assert_allclose(got, want, rtol=1e-6, atol=1e-6)
-    assert np.abs(np.asarray(ours[1][:12])).max() > 1.0  # the table pushes
-    steps = np.asarray(steps).ravel()
-    assert 1 <= steps.min() < steps.max() <= model.opt.iterations, steps

@@ -28,7 +28,6 @@ import numpy as np
 from flax import struct
 
 from specrl_jax.envs import compiled
-from specrl_jax.envs.arm import newton
 from specrl_jax.envs.arm.collision import Collision, ContactReach
 from specrl_jax.envs.arm.kinematics import ChainKinematics
 from specrl_jax.envs.compaction import where_needed
@@ -210,7 +209,7 @@ class Physics:
         m = self.model
         # `where_needed` may trace this after `step`'s own context has closed (under an outer vmap)
         with small_linalg.small_cholesky():
-            return newton.solve(m, mjx.make_constraint(m, data))
+            return mjx.solve(m, mjx.make_constraint(m, data))
 
     # The constraint paths take `(data after accelerate, ContactReach gaps float[P])` and give
     # (qacc, qfrc_constraint), both float[7].
