@@ -14,7 +14,7 @@ arg-max of the separating-axis test. The padding adds arithmetic (every box-hull
 
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp

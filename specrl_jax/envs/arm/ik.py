@@ -71,9 +71,11 @@ class EndEffectorIK:
         return point, frames.xquat[self._hand], jnp.concatenate([jacp.T, frames.xaxis.T], axis=0)
 
     def solve(self, qpos: jax.Array, target: jax.Array,
-              orientation: jax.Array = jnp.asarray(DOWN)) -> jax.Array:
+              orientation: jax.Array | None = None) -> jax.Array:
         """float[7] joint angles (rad) from PyBullet's IK iterations, started at `qpos`, toward
-        the grasp-target position `target: float[3]` (m) and `orientation` (wxyz)."""
+        the grasp-target position `target: float[3]` (m) and `orientation` (wxyz; default
+        gripper down)."""
+        orientation = jnp.asarray(DOWN) if orientation is None else orientation
 
         def iteration(_, carry):
             q, last_error = carry

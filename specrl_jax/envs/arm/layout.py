@@ -266,7 +266,7 @@ def _feasibility_points(region_radius: float, keepout: float) -> tuple[ArmConfig
     return config, points.astype(np.float32)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def keepout_pass_fraction(region_radius: float, keepout: float) -> float:
     """The fraction (0..1) of the feasibility points that pass the exact robot keep-out test
     (`keepout_margin`; a compile of about half a second)."""
@@ -275,7 +275,7 @@ def keepout_pass_fraction(region_radius: float, keepout: float) -> float:
     return float(np.mean(np.asarray(margin) > 0))
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def grid_clear_fraction(region_radius: float, keepout: float) -> float:
     """A lower bound of `keepout_pass_fraction` from the stored keep-out grid's CLEAR cells (no
     compiling); 0 when no grid is stored."""
