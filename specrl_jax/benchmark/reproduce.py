@@ -123,12 +123,14 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     train, evaluate = train or default_train, evaluate or default_evaluate
     load = load or default_load
     writer = hosts.is_writer()
-    draw = (trajectories and records_trajectories(cell)
-            and not store.trajectories_path(cell).exists())
+    figure = bool(trajectories) and records_trajectories(cell)
     record = store.read(cell) or store.new_record(cell)
     record["config"] = cell.config()
     todo = missing_work(cell, record)
-    if not todo:
+    # the figure's episodes belong to the stored seed-1 parameters: drawn when missing
+    draw = (figure and not store.trajectories_path(cell).exists()
+            and store.params_path(cell).exists())
+    if not todo and not draw:
         log(f"{cell.name}: done, skipped")
         return record
     run_dir = store.scratch_dir(cell) / "run"
@@ -148,7 +150,9 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
             record["versions"], record["device"] = _versions()
             record.pop("source", None)
             record.pop("params_note", None)
+            draw = figure  # new seed-1 parameters: the figure's episodes are drawn again
             if writer:
+                store.trajectories_path(cell).unlink(missing_ok=True)
                 _save_seed1(params, store.params_path(cell))
                 if (run_dir / "metrics.jsonl").exists():
                     shutil.copyfile(run_dir / "metrics.jsonl", store.curve_path(cell))
@@ -159,6 +163,8 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
                 return record
         elif suites_todo:
             params = load(cell, trained, cell.seeds)
+        elif draw:
+            params = load(cell, store.params_path(cell), 1)
     else:
         source = grid.cell(cell.params_from) if cell.params_from in grid.BY_NAME else None
         # the source cell's parameters in this store, else in the package's

@@ -145,6 +145,45 @@ def test_a_cell_with_fewer_seeds_is_retrained_and_all_suites_reevaluated(tmp_pat
     assert fakes.trained == 1 and fakes.evaluated == list(CELL.suites)
 
 
+
+def test_the_trajectory_figure_follows_the_stored_parameters(tmp_path):
+    """A Zone cell draws its figure's episodes once with its seed-1 parameters; a done cell
+    whose episodes are missing draws them from the stored parameters without training or
+    evaluating; a retrained cell draws them again from its new parameters."""
+    store = Store(tmp_path)
+    point = dataclasses.replace(grid.cell("PointLTL0-v0/genz"), seeds=2, total_steps=2048,
+                                episodes=3)
+    drawn = []
+
+    def recorder(cell, params):
+        drawn.append(np.shape(params["w"]))
+        return {"formula": "F blue", "drawing": len(drawn)}
+
+    def run(fakes):
+        return reproduce.run_cell(point, store, log=lambda line: None, train=fakes.train,
+                                  evaluate=fakes.evaluate, load=fakes.load, trajectories=recorder)
+
+    def stored():
+        return json.loads(store.trajectories_path(point).read_text())["drawing"]
+
+    first = Fakes()
+    assert run(first)["state"] == "done"
+    assert drawn == [(2, 3)] and stored() == 1  # the training's parameters, every seed
+    again = Fakes()
+    run(again)
+    assert len(drawn) == 1 and again.trained == 0  # done, and its episodes are there
+    store.trajectories_path(point).unlink()
+    missing = Fakes()
+    assert run(missing)["state"] == "done"
+    assert drawn[-1] == (1, 3) and stored() == 2  # the stored seed-1 parameters
+    assert missing.trained == 0 and missing.evaluated == []
+    record = store.read(point)
+    record["training"]["complete"] = False  # an unfinished training: it trains again
+    store.write(point, record)
+    retrained = Fakes()
+    assert run(retrained)["state"] == "done"
+    assert retrained.trained == 1 and drawn[-1] == (2, 3) and stored() == 3
+
 def test_the_committed_store_and_the_list(capsys):
     store = Store()
     assert store.state(grid.cell("LetterLTL0-v0/genz")) == "done"
