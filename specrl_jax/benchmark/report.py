@@ -395,6 +395,48 @@ def dynamics_figure(store: Store, path: Path) -> Path:
     return _save(fig, path)
 
 
+def dynamics_table(store: Store) -> list[str]:
+    """The figure (a)'s LiDAR row as numbers: per method, IND success and violation on Point,
+    Car and Ant, the seeds whose success stayed below 0.1 (a training that did not take off), and
+    whether success falls and violations rise from Point to Car (the paper's trend)."""
+    import numpy as np
+
+    robots = [(robot, lidar) for robot, lidar, _ in DYNAMICS]
+    rows, falls, rises, compared = [], 0, 0, 0
+    for method in grid.METHODS:
+        cells, failed = [], []
+        for _, env_id in robots:
+            c = next((c for c in grid.GRID if c.env_id == env_id and c.method == method
+                      and not c.variant), None)
+            entry = ((store.read(c) or {}).get("suites", {}).get("zone/finite/ind")
+                     if c is not None else None)
+            if entry is None:
+                cells.append(None)
+                failed.append("-")
+                continue
+            s, v = suite_metric(entry, "eta_s")[0], suite_metric(entry, "eta_v")[0]
+            cells.append((s, v))
+            per_seed = np.asarray(entry["per_seed"]["eta_s"], float).mean(axis=1)
+            failed.append(f"{int(np.sum(per_seed < 0.1))} of {per_seed.size}")
+        if cells[0] and cells[1]:
+            compared += 1
+            falls += cells[1][0] < cells[0][0]
+            rises += cells[1][1] > cells[0][1]
+        shown = [f"{c[0]:.2f} / {c[1]:.2f}" if c else "-" for c in cells]
+        rows.append(f"| {METHOD_NAMES[method]} | {' | '.join(shown)} | {' / '.join(failed)} |")
+    names = [robot for robot, _ in robots]
+    return [
+        (f"| method | {' | '.join(f'{r} η_s / η_v' for r in names)} | seeds below 0.1 success "
+        f"({' / '.join(names)}) |"),
+        "|---|" + "---|" * (len(names) + 1),
+        *rows,
+        "",
+        (f"From Point to Car (LiDAR, IND), success falls for {falls} of the {compared} methods "
+         f"with both cells and violations rise for {rises}." if compared else
+         "No method has both a Point and a Car cell yet."),
+    ]
+
+
 def settings_figure(store: Store, path: Path) -> Path:
     """The paper's figure (b): partial view, moving zones, the arm's two modes (IND)."""
     plt = _pyplot()
@@ -471,6 +513,8 @@ def render(store: Store | str | os.PathLike | None = None,
          "drawn as missing."),
         "",
         f"![robot dynamics and observation modality]({rel}/robot_dynamics_observation.png)",
+        "",
+        *dynamics_table(store),
         "",
         f"![partial view, moving zones, arm modes]({rel}/partial_moving_arm.png)",
         "",

@@ -3,11 +3,12 @@ measurement sections, figures, and the same files when rendered twice."""
 
 import dataclasses
 
-from test_reproduce import CELL, Fakes
+import numpy as np
+from test_reproduce import CELL, Fakes, fake_result
 
 from specrl_jax import cli
 from specrl_jax.benchmark import grid, report, reproduce
-from specrl_jax.benchmark.store import Store, mark_stale
+from specrl_jax.benchmark.store import Store, mark_stale, suite_metric
 
 MEASUREMENTS = """
 - section: Worlds
@@ -88,6 +89,7 @@ def test_report_renders_a_tiny_store_deterministically(tmp_path):
     worlds = page[page.index("### Worlds"):page.index("### Test suite")]
     assert "![LetterLTL0-v0 | map-bank resets](figures/letter_throughput.png)" in worlds
     assert "](figures/robot_dynamics_observation.png)" in page
+    assert "No method has both a Point and a Car cell yet." in page
     assert "trajectories_CarLTL0-v0.png" in names  # the Car cell recorded episodes
     assert "](figures/trajectories_CarLTL0-v0.png)" in page
     # an entry scored by an earlier test-time agent: marked, with the reason, and work to redo
@@ -106,3 +108,28 @@ def test_report_command(tmp_path):
     out = tmp_path / "docs" / "results.md"
     assert cli.main(["report", "--store", str(store.root), "--out", str(out)]) == 0
     assert out.exists() and (tmp_path / "docs" / "figures" / "partial_moving_arm.png").exists()
+
+
+def test_the_robot_dynamics_table_compares_point_with_car(tmp_path):
+    """Under the figure (a): per method, IND success / violation per robot, the seeds that did
+    not take off (success below 0.1), and whether success falls from Point to Car."""
+    store = Store(tmp_path)
+    for env_id, success in (("PointLTL0-v0", 0.9), ("CarLTL0-v0", 0.3)):
+        cell = dataclasses.replace(grid.cell(f"{env_id}/genz"), seeds=4, episodes=20,
+                                   suites=("zone/finite/ind",))
+        fakes = Fakes()
+        fakes.evaluate = lambda c, params, suites, log, s=success: [
+            fake_result(c, suite, s) for suite in suites]
+        reproduce.run_cell(cell, store, log=lambda line: None, train=fakes.train,
+                           evaluate=fakes.evaluate, load=fakes.load, trajectories=False)
+    shown = []
+    for env_id in ("PointLTL0-v0", "CarLTL0-v0"):
+        entry = store.read(f"{env_id}/genz")["suites"]["zone/finite/ind"]
+        low = int((np.mean(entry["per_seed"]["eta_s"], axis=1) < 0.1).sum())
+        shown.append(((f"{suite_metric(entry, 'eta_s')[0]:.2f} / "
+                      f"{suite_metric(entry, 'eta_v')[0]:.2f}"), f"{low} of 4"))
+    lines = report.dynamics_table(store)
+    assert (f"| GenZ-LTL | {shown[0][0]} | {shown[1][0]} | - | {shown[0][1]} / {shown[1][1]} / - |"
+            in lines)
+    assert "| DeepLTL | - | - | - | - / - / - |" in lines
+    assert lines[-1].startswith("From Point to Car (LiDAR, IND), success falls for 1 of the 1 ")
