@@ -12,7 +12,8 @@
 - Actions are Brax's `[-1, 1]^action_size`, scaled to the world's box.
 - Observation: the task's observation (e.g. GenZ-LTL's reduced one) flattened to one float32
   vector (`flatten=True`) or kept as a dict (Brax's dict observations).
-- Reward: the task loop's reward (`tasks.reward_progress`: +1 on progress, -1 on violation), or
+- Reward: the task loop's reward (`tasks.reward_progress`: +1 on progress, -1 on violation, else
+  the world's own, -1 for crossing a Zone wall), or
   `reward_fn(info)` over the loop's step info.
 - Episode ends: the task loop's own auto-reset (`envs.wrappers.reset_done`): every ended episode
   restarts on a fresh layout with a fresh task. `done` = terminated or truncated;

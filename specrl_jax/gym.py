@@ -2,7 +2,8 @@
 
 `gymnasium.make("LetterLTL0-v0")` gives a `GymEnv`: numpy observations in the original
 benchmark's layout (`env.original_observation_space`: a flat vector, or for camera worlds the
-original's dict with its `vision` key), reward 0, `info["propositions"]` a set of
+original's dict with its `vision` key), the world's reward (0, and -1 on the step that crosses
+a Zone wall, as the original's), `info["propositions"]` a set of
 proposition names. `gymnasium.make_vec(env_id, num_envs=N)` gives a `GymVectorEnv` that steps the
 N worlds in one compiled call with same-step auto-reset. Both are thin host shells over the JAX
 env: they jit once, hold the only stateful key, and seed it through `reset(seed=...)`. Their

@@ -75,6 +75,33 @@ def test_violation_ends_with_minus_one(task, step):
     assert bool(i1["violation"]) and not bool(i1["success"])
 
 
+class RewardingWorld(TinyWorld):
+    """The tiny world with a world reward of -0.5 on every step (a Zone wall crossing gives -1)."""
+
+    def step_env(self, key, state, action, params):
+        obs, state, _, terminated, info = super().step_env(key, state, action, params)
+        return obs, state, jnp.float32(-0.5), terminated, info
+
+
+def test_the_world_reward_passes_where_the_task_neither_progresses_nor_fails():
+    """The task loop's reward is +1 / -1 on progress / violation and the world's own reward
+    otherwise (`info["env_reward"]`); LTL2Action's and DeepLTL's training reward
+    (`pass_world_reward`) keeps the world's reward likewise, on success only +1."""
+    from specrl_jax.baselines.train_env import pass_world_reward
+
+    task = TaskEnv(RewardingWorld(), stack_specs([reach_avoid_spec()]))
+    step = jax.jit(task.step_task)
+    records = play(step, start(task, 0), [UP, DOWN, RIGHT])  # two self-loops, then a (progress)
+    assert [r for _, r, *_ in records] == [-0.5, -0.5, 1.0]
+    assert [float(i["env_reward"]) for *_, i in records] == [-0.5, -0.5, -0.5]
+    assert [float(pass_world_reward(i)) for *_, i in records] == [-0.5] * 3  # not complete
+    state = start(task, 0)
+    (_, r1, t1, _, i1), = play(step, state, [DOWN])  # violation: -1 whatever the world gives
+    assert (r1, t1, float(pass_world_reward(i1))) == (-1.0, True, -1.0)
+    *_, (_, r3, t3, _, i3) = play(step, state, [RIGHT, RIGHT])  # success
+    assert (r3, t3, float(pass_world_reward(i3))) == (1.0, True, 1.0)
+
+
 def test_self_loops_give_no_reward_and_count_steps_in_q(task):
     state = start(task, 0)
     (s1, r1, *_), (s2, r2, *_) = play(jax.jit(task.step_task), state, [UP, UP])

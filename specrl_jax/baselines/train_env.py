@@ -25,6 +25,15 @@ def no_epsilon(action: jax.Array) -> tuple[jax.Array, jax.Array]:
     return action, jnp.zeros((), bool)
 
 
+def pass_world_reward(info: dict[str, Any]) -> jax.Array:
+    """float32[]: +1 on success, -1 on violation, else the world's own reward (-1 for crossing a
+    Zone wall): LTL2Action's and DeepLTL's originals keep the env's reward on the steps that
+    neither complete nor violate their task."""
+    ended = info["success"] | info["violation"]
+    outcome = info["success"].astype(jnp.float32) - info["violation"].astype(jnp.float32)
+    return jnp.where(ended, outcome, info["env_reward"])
+
+
 @dataclasses.dataclass(frozen=True)
 class TaskTrainEnv:
     """`rollout.TrainEnv` over a `TaskEnv` (auto-resetting; `task_params` = source params)."""

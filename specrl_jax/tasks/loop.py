@@ -9,8 +9,9 @@ source step -> success / violation / accepting visit -> reward -> termination ->
   where none exists steps the world with `action` instead.
 - A task ends on success (finite-horizon tasks), on violation and on the world's own
   termination; it is truncated at `params.max_steps` task steps.
-- Reward: `reward_progress` by default (+1 on progress, -1 on violation, 0 otherwise and on
-  epsilon steps); a method derives its own training signals from `info`'s events instead.
+- Reward: `reward_progress` by default (+1 on progress, -1 on violation, else the world's own
+  reward, e.g. -1 for crossing a Zone wall; 0 on epsilon steps); a method derives its own
+  training signals from `info`'s events (and `info["env_reward"]`) instead.
 - Auto-reset (`envs.wrappers.reset_done`, the project's one auto-reset): a fresh layout and a
   fresh task (an automaton source moves to the next spec of its bank).
 """
@@ -60,9 +61,11 @@ class TaskState:
         return self.task.spec_index
 
 
-def reward_progress(events: Events, is_epsilon: jax.Array) -> jax.Array:
-    """float32[]: +1 on progress, -1 on violation, 0 otherwise and on epsilon steps."""
-    reward = jnp.where(events.violation, -1.0, jnp.where(events.progress, 1.0, 0.0))
+def reward_progress(events: Events, is_epsilon: jax.Array,
+                    env_reward: jax.Array | float = 0.0) -> jax.Array:
+    """float32[]: +1 on progress, -1 on violation, else the world's `env_reward`; 0 on epsilon
+    steps."""
+    reward = jnp.where(events.violation, -1.0, jnp.where(events.progress, 1.0, env_reward))
     return jnp.where(is_epsilon, 0.0, reward).astype(jnp.float32)
 
 
@@ -127,7 +130,7 @@ class TaskEnv:
         params = self.env.default_params if params is None else params
         key_env, key_task = jax.random.split(key)
         slot = automata.epsilon_slot(take_epsilon)
-        obs, env_state, _, env_terminated, _, env_info = self.env.step(
+        obs, env_state, env_reward, env_terminated, _, env_info = self.env.step(
             key_env, state.env_state, action, params
         )
         propositions = env_info["propositions"]
@@ -137,6 +140,7 @@ class TaskEnv:
             env_state = select_tree(is_epsilon, state.env_state, env_state)
             propositions = jnp.where(is_epsilon, state.propositions, propositions)
             env_terminated = ~is_epsilon & env_terminated
+            env_reward = jnp.where(is_epsilon, 0.0, env_reward)
         else:
             is_epsilon = jnp.zeros((), bool)
         symbol = env_info.get("symbol") if self.source.symbol_is_row else None
@@ -166,11 +170,12 @@ class TaskEnv:
             "accepted": events.accepted,
             "epsilon": is_epsilon,
             "env_terminated": env_terminated,
+            "env_reward": jnp.asarray(env_reward, jnp.float32),
             "num_accepting_visits": new_state.num_accepting,
             "steps": time,
             "task": state.task,
         }
-        reward = reward_progress(events, is_epsilon)
+        reward = reward_progress(events, is_epsilon, env_reward)
         return self._observe(obs, new_state), new_state, reward, terminated, truncated, info
 
     def step(self, key: jax.Array, state: TaskState, action: jax.Array, params: Any = None,

@@ -92,14 +92,18 @@ def test_thrust_moves_along_the_heading_and_labels_follow(world):
     assert labels[0] == [False, False, False, False] and labels[-1] == [False, True, False, False]
 
 
-def test_wall_crossing_terminates(world):
+def test_wall_crossing_terminates_with_the_original_reward(world):
+    """Crossing |x| or |y| = 3.3 ends the episode with reward -1 (the original wrapper's);
+    every other step's reward is 0."""
     env, params, reset, step, reset_to = world
     _, state = reset(jax.random.key(0), params)
     for x, expected in ((3.3, True), (3.29, False), (-3.31, True)):
         layout = dict(env.layout(state), agent_xy=jnp.array([0.0, x]))
         _, start = reset_to(jax.random.key(0), layout, params)
-        _, _, _, terminated, truncated, _ = step(jax.random.key(1), start, action(0.0, 0.0), params)
+        _, _, reward, terminated, truncated, _ = step(jax.random.key(1), start, action(0.0, 0.0),
+                                                      params)
         assert bool(terminated) == expected and not truncated
+        assert float(reward) == (-1.0 if expected else 0.0)
 
 
 def test_horizon_truncates_and_auto_reset_returns_the_final_observation(world):

@@ -32,7 +32,7 @@ from specrl_jax.baselines.ppo.train import Method, PPOConfig, world_config
 from specrl_jax.baselines.scoring import score_chosen
 from specrl_jax.baselines.spec import MethodSpec
 from specrl_jax.baselines.task_sources import curriculum_of
-from specrl_jax.baselines.train_env import TaskTrainEnv
+from specrl_jax.baselines.train_env import TaskTrainEnv, pass_world_reward
 from specrl_jax.envs.wrappers import select_tree
 from specrl_jax.specs import CurriculumSampler, curriculum
 from specrl_jax.tasks import SequenceSource, StatefulPolicy, TaskEnv
@@ -183,8 +183,7 @@ def make_method(world: Any, params: Any, family: str | None = None) -> DeepLTL:
                            task.pairs, allowed)
 
     def signals(info):
-        reward = info["success"].astype(jnp.float32) - info["violation"].astype(jnp.float32)
-        return reward, jnp.zeros((), jnp.float32), jnp.zeros((), bool)
+        return pass_world_reward(info), jnp.zeros((), jnp.float32), jnp.zeros((), bool)
 
     task = TaskEnv(world, source, observe)
     return DeepLTL(TaskTrainEnv(task, params, signals, split_action(network)), network)

@@ -46,7 +46,7 @@ from specrl_jax.baselines.ppo.train import Method, PPOConfig, world_config
 from specrl_jax.baselines.pretraining import SymbolWorld, run_pretraining
 from specrl_jax.baselines.spec import MethodSpec
 from specrl_jax.baselines.task_sources import curriculum_of, families_with_curriculum, task_source
-from specrl_jax.baselines.train_env import TaskTrainEnv
+from specrl_jax.baselines.train_env import TaskTrainEnv, pass_world_reward
 from specrl_jax.specs import CurriculumSampler
 from specrl_jax.tasks import StatefulPolicy, TaskEnv
 from specrl_jax.tasks.curriculum_progression import CurriculumProgressionSource, stage_formulas
@@ -201,8 +201,7 @@ def make_method(world: Any, params: Any, family: str | None = None,
         source = CurriculumProgressionSource(bank, world.alphabet, curriculum, stages)
 
     def signals(info):
-        reward = info["success"].astype(jnp.float32) - info["violation"].astype(jnp.float32)
-        return reward, jnp.zeros((), jnp.float32), jnp.zeros((), bool)
+        return pass_world_reward(info), jnp.zeros((), jnp.float32), jnp.zeros((), bool)
 
     task = TaskEnv(world, source, observe_formula(bank, world.obs_kinds))
     return LTL2Action(TaskTrainEnv(task, params, signals), network, encoder, pretrain_steps,

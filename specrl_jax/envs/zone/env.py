@@ -67,7 +67,7 @@ class ZoneEnv(Env):
     Action: `float32[2]` (Point: thrust, yaw servo; Car: wheel torques) or `float32[8]` (Ant
       joint torques), clipped to [-1, 1]; 10 physics substeps per step.
     Labels: colour p holds iff the agent body is within the radius of a zone of colour p.
-    Termination: |x| or |y| >= 3.3 (the walls), the Ant's torso z <= 0.08. Reward: always 0.
+    Termination: |x| or |y| >= 3.3 (the walls), the Ant's torso z <= 0.08. Reward: -1 on the step that crosses a wall, else 0 (the original's).
     State: `ZoneState`. Physics: `config.physics` resolved on this machine (`physics.backend`:
     "jax" MJX, or "warp" MuJoCo Warp through MJX).
     Resets: an exact layout each time, or opt-in draws from `with_map_bank`.
@@ -240,7 +240,8 @@ class ZoneEnv(Env):
         outside = jnp.any(jnp.abs(position[:2]) >= self.config.wall)
         fallen = position[2] <= ANT_FALL_HEIGHT if self.config.robot == "Ant" else False
         info = {"propositions": self._labels(state)}
-        return self._observe(state), state, jnp.zeros((), jnp.float32), outside | fallen, info
+        reward = jnp.where(outside, -1.0, 0.0).astype(jnp.float32)  # the original's wall reward
+        return self._observe(state), state, reward, outside | fallen, info
 
     def zone_positions(self, state: ZoneState) -> jax.Array:
         """float32[Z, 2]: current zone centres, metres. A moving zone follows a command on the
