@@ -85,8 +85,8 @@ class RewardingWorld(TinyWorld):
 
 def test_the_world_reward_passes_where_the_task_neither_progresses_nor_fails():
     """The task loop's reward is +1 / -1 on progress / violation and the world's own reward
-    otherwise (`info["env_reward"]`); LTL2Action's and DeepLTL's training reward
-    (`pass_world_reward`) keeps the world's reward likewise, on success only +1."""
+    otherwise (`info["env_reward"]`); the training reward of LTL2Action, DeepLTL and
+    RAD-Embeddings (`pass_world_reward`) keeps the world's reward likewise, on success only +1."""
     from specrl_jax.baselines.train_env import pass_world_reward
 
     task = TaskEnv(RewardingWorld(), stack_specs([reach_avoid_spec()]))

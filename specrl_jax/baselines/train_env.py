@@ -28,7 +28,8 @@ def no_epsilon(action: jax.Array) -> tuple[jax.Array, jax.Array]:
 def pass_world_reward(info: dict[str, Any]) -> jax.Array:
     """float32[]: +1 on success, -1 on violation, else the world's own reward (-1 for crossing a
     Zone wall): LTL2Action's and DeepLTL's originals keep the env's reward on the steps that
-    neither complete nor violate their task."""
+    neither complete nor violate their task, RAD-Embeddings' adds it to its DFA reward (the same
+    on a Zone world: no zone reaches a wall)."""
     ended = info["success"] | info["violation"]
     outcome = info["success"].astype(jnp.float32) - info["violation"].astype(jnp.float32)
     return jnp.where(ended, outcome, info["env_reward"])

@@ -214,3 +214,25 @@ def test_committed_genz_parameters_give_the_same_network_with_the_library_convol
     for a, b in ((current.pi.logits, library.pi.logits), (current.value, library.value),
                  (current.cost_value, library.cost_value), (current.multiplier, library.multiplier)):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-5)
+
+
+def test_training_rewards_see_the_world_reward_as_their_originals_do():
+    """A step that neither completes nor violates the task but ends the world's episode with
+    its reward -1 (a Zone wall crossing): LTL2Action, DeepLTL and RAD-Embeddings train on -1
+    (their wrappers keep the env reward), GenZ-LTL on cost 1, GCRL-LTL's goal reward stays 0."""
+    from specrl_jax.baselines import ltl2action, rad
+    from specrl_jax.baselines.gcrl import make_method as gcrl_method
+
+    world, params = specrl_jax.make("LetterLTL0-v0")
+    false = jnp.zeros((), bool)
+    wall = {"success": false, "violation": false, "progress": false, "env_terminated": ~false,
+            "env_reward": jnp.float32(-1.0)}
+    for module in (ltl2action, deepltl, rad):
+        reward, cost, _ = module.make_method(world, params).env.signals(wall)
+        assert (float(reward), float(cost)) == (-1.0, 0.0), module.__name__
+    reward, cost, _ = genz.make_method(world, params).env.signals(wall)
+    assert (float(reward), float(cost)) == (0.0, 1.0)
+    reward, _, _ = gcrl_method(world, params).env.signals(wall)
+    assert float(reward) == 0.0
+    done = dict(wall, success=~false)  # completing the task: +1 whatever the world gives
+    assert float(deepltl.make_method(world, params).env.signals(done)[0]) == 1.0

@@ -56,7 +56,7 @@ from specrl_jax.baselines.rad.encoder import (
 )
 from specrl_jax.baselines.spec import MethodSpec
 from specrl_jax.baselines.task_sources import curriculum_of, families_with_curriculum, task_source
-from specrl_jax.baselines.train_env import TaskTrainEnv
+from specrl_jax.baselines.train_env import TaskTrainEnv, pass_world_reward
 from specrl_jax.specs import CurriculumSampler
 from specrl_jax.tasks import TaskEnv
 from specrl_jax.tasks.dfa_source import CurriculumDFASource, DFASource
@@ -265,8 +265,7 @@ def make_method(world: Any, params: Any, family: str | None = None, bank: DFABan
         return RADObs(obs_parts(obs, kinds), embed(state.task.index, state.task.q))
 
     def signals(info):
-        reward = info["success"].astype(jnp.float32) - info["violation"].astype(jnp.float32)
-        return reward, jnp.zeros((), jnp.float32), jnp.zeros((), bool)
+        return pass_world_reward(info), jnp.zeros((), jnp.float32), jnp.zeros((), bool)
 
     if curriculum is None:
         source = DFASource(bank, world.alphabet)
