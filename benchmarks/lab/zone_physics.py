@@ -10,7 +10,9 @@ differences).
 
 `--physics warp` runs MuJoCo Warp through MJX (needs warp-lang). `--mjx-frame` gives MJX-JAX
 MJX 3.17's own capsule-plane contact frame instead of MuJoCo C's (A/B only). `--set KEY=VALUE
-...` overrides `Solver` fields (e.g. `max_contacts=4`). Prints one JSON row per robot
+...` overrides `Solver` fields (e.g. `max_contacts=4`). `--matmul-precision highest` runs every
+float32 matrix product in full float32 (JAX's default lets a GPU use TF32 on its tensor cores; a
+CPU is unaffected). Prints one JSON row per robot
 (`benchmarks/harness.py`), appended to `--out` if given.
 
     python benchmarks/lab/zone_physics.py --robots Car --steps 50 --seeds 8
@@ -131,14 +133,19 @@ def main() -> None:
         help="overrides of the robot's default Solver fields (ints or True/False), "
         "e.g. max_contacts=4",
     )
+    parser.add_argument("--matmul-precision", default=None, choices=["default", "high", "highest"],
+                        help="jax_default_matmul_precision for this process (default: JAX's)")
     parser.add_argument("--out", default=None, help="append the JSON rows to this file")
     args = parser.parse_args()
+    if args.matmul_precision:
+        jax.config.update("jax_default_matmul_precision", args.matmul_precision)
     OVERRIDES.update({k: (v == "True" if v in ("True", "False") else int(v))
                       for k, _, v in (pair.partition("=") for pair in args.set)})
     settings = [args.physics, "float64" if args.x64 else "float32"]
     settings += ["MJX's own capsule frame"] * args.mjx_frame
     settings += [f"{k}={v}" for k, v in OVERRIDES.items()]
     settings += [f"settled {args.settle} substeps in C"] * bool(args.settle)
+    settings += [f"matmul precision {args.matmul_precision}"] * bool(args.matmul_precision)
     for robot in args.robots:
         free, one_step, spread = fidelity(robot, args.steps, args.seeds, None, args.physics,
                                           args.settle, args.mjx_frame)
