@@ -406,8 +406,7 @@ def dynamics_table(store: Store) -> list[str]:
     for method in grid.METHODS:
         cells, failed = [], []
         for _, env_id in robots:
-            c = next((c for c in grid.GRID if c.env_id == env_id and c.method == method
-                      and not c.variant), None)
+            c = grid.BY_NAME.get(f"{env_id}/{method}")
             entry = ((store.read(c) or {}).get("suites", {}).get("zone/finite/ind")
                      if c is not None else None)
             if entry is None:

@@ -67,7 +67,8 @@ class ZoneEnv(Env):
     Action: `float32[2]` (Point: thrust, yaw servo; Car: wheel torques) or `float32[8]` (Ant
       joint torques), clipped to [-1, 1]; 10 physics substeps per step.
     Labels: colour p holds iff the agent body is within the radius of a zone of colour p.
-    Termination: |x| or |y| >= 3.3 (the walls), the Ant's torso z <= 0.08. Reward: -1 on the step that crosses a wall, else 0 (the original's).
+    Termination: |x| or |y| >= 3.3 (the walls), the Ant's torso z <= 0.08. Reward: -1 on the
+      step that crosses a wall, else 0 (the original's).
     State: `ZoneState`. Physics: `config.physics` resolved on this machine (`physics.backend`:
     "jax" MJX, or "warp" MuJoCo Warp through MJX).
     Resets: an exact layout each time, or opt-in draws from `with_map_bank`.
