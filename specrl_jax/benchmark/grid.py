@@ -205,13 +205,16 @@ TRAIN_RATES: dict[tuple[str, str], tuple[float, str]] = {
     ("PointLTL0-v0", "ltl2action"): (107_603, "H200, 5 x 15M"),
     ("PointLTL0-v0", "ltl2action+bootcamp"): (106_289, "H200, 5 x 15M"),
     ("PointLTL0-v0", "rad"): (696_040, "H200, 5 x 15M"),
+    ("PointLTL1-v0", "genz"): (735_960, "H200, 5 x 15M, bank resets, compile included"),
     ("PointLTL1-v0", "deepltl"): (512_933, "H200, 5 x 15M, bank resets, compile included"),
+    ("PointLTL1-v0", "gcrl"): (510_165, "H200, 5 x 15M, bank resets, compile included"),
     ("PointLTL1-v0", "ltl2action"): (107_344, "H200, 5 x 4.7M of 15M, compile included"),
-    ("PointLTL2-v0", "genz"): (672_776, "H200, 5 x 15M, bank resets"),
+    ("PointLTL2-v0", "genz"): (741_477, "H200, 5 x 15M, bank resets, compile included"),
     ("PointLTL2-v0", "deepltl"): (523_278, "H200, 5 x 15M, bank resets, compile included"),
-    ("PointLTL2-v0", "gcrl"): (503_667, "H200, 5 x 15M, bank resets"),
+    ("PointLTL2-v0", "gcrl"): (586_038, "H200, 5 x 15M, bank resets, compile included"),
     ("PointLTL2-v0", "rad"): (738_760, "H200, 5 x 15M, bank resets"),
-    ("CarLTL0-v0", "genz"): (181_242, "H200, 5 x 15M, MuJoCo Warp"),
+    ("CarLTL0-v0", "genz"): (192_206, "H200, 5 x 15M, MuJoCo Warp, compile included"),
+    ("CarLTL0-v0", "deepltl"): (164_226, "H200, 5 x 15M, MuJoCo Warp, compile included"),
     ("CarLTL0-v0", "rad"): (94_063, "H200, 5 x 15M, MJX-JAX (no MuJoCo Warp), a resume included"),
     ("PandaLTLReach0Joints-v0", "genz"): (119_395, "H200, 5 x 15M, 4,096 x 16 per seed, "
                                                    "compile and a resume included"),
@@ -235,8 +238,9 @@ TRAIN_PER_ENV_STEP = 0.16
 #: image worlds: the Point camera world's measured training rate, scaled by the robot's physics
 VISION_BASE = "PointLTL0Vision-v0"
 #: measured evaluation wall time of a cell's suites, 5 seeds x 100 episodes, compile included
-EVAL_S: dict[str, float] = {"LetterLTL0-v0": 48.0, "PointLTL0-v0": 42.0, "CarLTL0-v0": 202.0,
-                            "PointLTL0MA2-v0": 60.0}
+EVAL_S: dict[str, float] = {"LetterLTL0-v0": 48.0, "PointLTL0-v0": 42.0, "PointLTL1-v0": 53.0,
+                            "PointLTL2-v0": 48.0, "CarLTL0-v0": 160.0, "PointLTL0MA2-v0": 60.0,
+                            "PandaLTLReach0Joints-v0": 351.0}
 EVAL_S_DEFAULT = 200.0
 SETUP_S = 60.0  # compile and setup per cell
 
