@@ -165,7 +165,7 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
     call many times.
 
     By default the K specs are all the task's specs and every episode runs `horizon` steps
-    (default `params.max_steps`), both fixed at compile time. Passing `spec_indices` (int32[K],
+    (default `params.max_steps`; it sets the world's time limit), both fixed at compile time. Passing `spec_indices` (int32[K],
     any K) and `horizon` (an int32 scalar, which also sets `max_steps`) makes them arguments:
     one compiled program then serves groups of specs with different horizons.
 
@@ -183,6 +183,7 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
     number of devices."""
     policy = as_stateful(policy)
     fixed_horizon = int(params.max_steps) if horizon is None else int(horizon)
+    params = params.replace(max_steps=fixed_horizon)  # the world's time limit is the horizon
     mesh = Mesh(np.asarray(list(devices) if devices is not None else jax.local_devices()), ("env",))
     padded = -(-episodes_per_seed // mesh.size) * mesh.size
     on_devices = NamedSharding(mesh, PartitionSpec("env"))
@@ -280,7 +281,8 @@ def evaluate(policy: Callable[..., Any] | StatefulPolicy, env_id_or_env: Any, sp
         episodes_per_seed: episodes per (seed, spec), each on a fresh layout.
         policy_params: passed to the policy unchanged (network weights, or None).
         env_params: overrides the env's params (e.g. `max_steps`).
-        horizon: scan length; defaults to `params.max_steps` (enough for every episode to end).
+        horizon: episode length in steps, the world's time limit for these episodes
+            (`params.max_steps` is replaced); defaults to `params.max_steps`.
 
     Returns:
         An `EvalResult` with the episode table as numpy arrays.
@@ -312,6 +314,7 @@ def record_episodes(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, 
     (the state belongs to the episode) of `B` episodes, for plots and checks."""
     policy = as_stateful(policy)
     horizon = int(params.max_steps) if horizon is None else int(horizon)
+    params = params.replace(max_steps=horizon)
 
     @jax.jit
     def run(keys, spec_index):

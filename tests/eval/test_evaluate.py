@@ -44,6 +44,19 @@ def test_table_shapes_and_outcome_invariants(random_result):
     assert random_result.is_finite.tolist() == [True, False, False]
 
 
+def test_horizon_is_the_episode_length_beyond_the_worlds_time_limit():
+    """An infinite-horizon run longer than the world's `max_steps` (Zone: 10,000 against
+    1,000) lasts the horizon: the world does not end the episodes at its own limit."""
+    long = evaluate(random_policy(ENV), (ENV, PARAMS), SPECS, seeds=[1], episodes_per_seed=16,
+                    horizon=3 * PARAMS.max_steps)
+    t = long.table
+    alive = ~t.violation[:, 1:]
+    assert alive.any()
+    assert (t.steps[:, 1:][alive] == 3 * PARAMS.max_steps).all()
+    finite_timeout = ~t.success[:, 0] & ~t.violation[:, 0]
+    assert (t.steps[:, 0][finite_timeout] == 3 * PARAMS.max_steps).all()
+
+
 def test_deterministic_and_independent_of_the_other_seeds_and_specs(random_result):
     again = evaluate(random_policy(ENV), (ENV, PARAMS), SPECS, seeds=[1, 2, 3], episodes_per_seed=16)
     for full, repeat in zip(random_result.table, again.table):
