@@ -33,6 +33,7 @@ SCRIPTS = {
     "lab/vision_fidelity.py": ["--robots", "Point", "--supersample", "1"],
     "lab/arm_vs_pybullet.py": ["--episodes", "2", "--steps", "3"],
     "lab/warp_profile.py": ["--robots", "Point", "--worlds", "4", "--substeps", "2"],
+    "lab/persistence_avoids.py": ["--episodes", "1", "--horizon", "5"],
     "lab/arm_solver_load.py": ["--policy", "random", "--suites", "arm_grippers/finite/ind",
                                "--episodes", "1", "--steps", "2"],
     "bench_speed.py": ["--part", "gymnasium", "--seeds", "1", "--episodes", "1",
