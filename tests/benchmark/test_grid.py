@@ -62,10 +62,10 @@ def test_selection_by_pattern_and_estimates():
     rate = grid.TRAIN_RATES[("PointLTL0-v0", "genz")][0]
     assert grid.estimate_seconds(c) == pytest.approx(75e6 / rate + grid.SETUP_S + 42.0)
     # an unmeasured cell: its world's GenZ-LTL rate times the method's ratio on PointLTL2
-    assert ("CarLTL0-v0", "deepltl") not in grid.TRAIN_RATES
-    ratio = (grid.TRAIN_RATES[("PointLTL2-v0", "deepltl")][0]
+    assert ("CarLTL0-v0", "gcrl") not in grid.TRAIN_RATES
+    ratio = (grid.TRAIN_RATES[("PointLTL2-v0", "gcrl")][0]
              / grid.TRAIN_RATES[("PointLTL2-v0", "genz")][0])
-    assert grid.training_rate(grid.cell("CarLTL0-v0/deepltl")) == pytest.approx(
+    assert grid.training_rate(grid.cell("CarLTL0-v0/gcrl")) == pytest.approx(
         grid.TRAIN_RATES[("CarLTL0-v0", "genz")][0] * ratio)
 
 
