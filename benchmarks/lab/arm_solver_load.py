@@ -50,8 +50,7 @@ def counting(run_batch):
 
 
 def measure(policy_ref: str, env_id: str, suite: str, episodes: int, steps: int) -> dict:
-    from specrl_jax.benchmark.agent import load
-    from specrl_jax.benchmark.experiment import make_method, make_policy
+    from specrl_jax.benchmark.agent import load, policy_and_params
     from specrl_jax.envs.registry import make
     from specrl_jax.eval.evaluate import make_evaluator, prepare_specs
     from specrl_jax.specs import suite as suite_formulas
@@ -59,13 +58,8 @@ def measure(policy_ref: str, env_id: str, suite: str, episodes: int, steps: int)
 
     world, env_params = make(env_id)
     stacked, names = prepare_specs(world, list(suite_formulas(suite)))
-    agent = load(policy_ref, env_id, seed=1, world=world)
-    if hasattr(agent, "method"):  # a trained run: the method's own test-time policy
-        method = make_method(agent.method, world, env_params, None, agent.method_options)
-        policy = make_policy(agent.method, world, method, None)
-        params = jax.tree.map(lambda x: x[0], agent.params)
-    else:
-        policy, params = agent.policy, agent.params
+    policy, params = policy_and_params(load(policy_ref, env_id, seed=1, world=world), world,
+                                       env_params)
     counts.clear()
     evaluator = make_evaluator(policy, TaskEnv(world, stacked), env_params, episodes, steps)
     jax.block_until_ready(evaluator(params, jnp.asarray([1], jnp.uint32)))

@@ -18,7 +18,6 @@ import itertools
 import os
 import sys
 
-import jax
 import numpy as np
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
@@ -35,21 +34,15 @@ def variants(formula: str) -> list[str]:
 
 
 def measure(policy_ref: str, env_id: str, suite: str, episodes: int, horizon: int) -> dict:
-    from specrl_jax.benchmark.agent import load
-    from specrl_jax.benchmark.experiment import make_method, make_policy
+    from specrl_jax.benchmark.agent import load, policy_and_params
     from specrl_jax.envs.registry import make
     from specrl_jax.eval.evaluate import evaluate
     from specrl_jax.specs import suite as suite_formulas
 
     world, env_params = make(env_id)
     formulas = [v for f in suite_formulas(suite) for v in variants(f)]
-    agent = load(policy_ref, env_id, seed=1, world=world)
-    if hasattr(agent, "method"):  # a trained run: the method's own test-time policy
-        method = make_method(agent.method, world, env_params, None, agent.method_options)
-        policy = make_policy(agent.method, world, method, None)
-        params = jax.tree.map(lambda x: x[0], agent.params)
-    else:
-        policy, params = agent.policy, agent.params
+    policy, params = policy_and_params(load(policy_ref, env_id, seed=1, world=world), world,
+                                       env_params)
     result = evaluate(policy, (world, env_params), formulas, seeds=[1],
                       episodes_per_seed=episodes, policy_params=params, horizon=horizon)
     per_spec = result.summary()["specs"]

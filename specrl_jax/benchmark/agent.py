@@ -292,6 +292,19 @@ def check(agent: Agent, task: Any, params: Any, env_id: str) -> None:
                          f"{dtype}; {env_id} takes shape {tuple(space.shape)} and dtype {expected}")
 
 
+def policy_and_params(agent: Agent | TrainedRun, world: Any, env_params: Any) -> tuple[Any, Any]:
+    """`(policy, parameters)` that run `agent` on `world` for `eval.evaluate`: a trained run's
+    own test-time agent with its first seed's parameters, else the agent's policy and
+    parameters."""
+    if isinstance(agent, TrainedRun):
+        from specrl_jax.benchmark.experiment import make_method, make_policy
+
+        method = make_method(agent.method, world, env_params, None, agent.method_options)
+        return (make_policy(agent.method, world, method, None),
+                jax.tree.map(lambda x: x[0], agent.params))
+    return agent.policy, agent.params
+
+
 def evaluate(agent: Agent | TrainedRun, env_id: str, suites: Sequence[str], episodes: int,
              seeds: Sequence[int] = (1,), horizon: int | None = None,
              log: Callable[[str], None] = print) -> list:
