@@ -20,7 +20,14 @@ import yaml
 
 from specrl_jax.benchmark import grid, paper
 from specrl_jax.benchmark.grid import Cell
-from specrl_jax.benchmark.store import Store, missing_work, scored_now, suite_metric, suite_seeds
+from specrl_jax.benchmark.store import (
+    Store,
+    missing_work,
+    scored_now,
+    seed_means,
+    suite_metric,
+    suite_seeds,
+)
 from specrl_jax.specs.suites import INFINITE_SCORING
 
 MEASUREMENTS = Path(__file__).resolve().parent / "data" / "measurements.yaml"
@@ -256,8 +263,8 @@ def _save(fig: Any, path: Path) -> Path:
 
 
 def _bars(ax: Any, env_id: str, suite: str, store: Store, title: str) -> None:
-    """Success and violation of the five methods on one world and suite; a missing cell is
-    drawn as a 'missing' label, a partial one marked."""
+    """Success and violation of the five methods on one world and suite (bars: mean and std over
+    seeds; dots: each seed); a missing cell is drawn as a 'missing' label, a partial one marked."""
     import numpy as np
 
     # per method, the plain cell, else its one variant (the multi-agent coordinator cells)
@@ -278,10 +285,11 @@ def _bars(ax: Any, env_id: str, suite: str, store: Store, title: str) -> None:
             ax.text(i, 0.5, "missing", rotation=90, ha="center", va="center", fontsize=7,
                     color="0.5")
             continue
-        s, s_std = suite_metric(entry, "eta_s")
-        v, v_std = suite_metric(entry, "eta_v")
-        ax.bar(i - 0.2, s or 0.0, 0.4, yerr=s_std or 0.0, color=COLOURS["success"])
-        ax.bar(i + 0.2, v or 0.0, 0.4, yerr=v_std or 0.0, color=COLOURS["violation"])
+        for offset, metric, colour in ((-0.2, "eta_s", "success"), (0.2, "eta_v", "violation")):
+            mean, std = suite_metric(entry, metric)
+            ax.bar(i + offset, mean or 0.0, 0.4, yerr=std or 0.0, color=COLOURS[colour])
+            seeds = seed_means(entry, metric)  # a bimodal cell shows as two clusters
+            ax.scatter([i + offset] * len(seeds), seeds, s=5, color="black", zorder=3)
         if store.state(c) != "done":
             ax.text(i, 1.0, "partial", ha="center", fontsize=6)
 
@@ -303,7 +311,7 @@ def world_figure(env_id: str, suites: Sequence[str], store: Store, path: Path) -
                              layout="constrained")
     for ax, suite in zip(axes[0], finite):
         _bars(ax, env_id, suite, store, f"{env_id} {suite.split('/')[-1].upper()}")
-    axes[0][0].set_ylabel("rate (mean ± std over seeds)", fontsize=8)
+    axes[0][0].set_ylabel("rate (mean ± std over seeds; dots: seeds)", fontsize=8)
     _legend(axes[0][0])
     return _save(fig, path)
 
@@ -391,7 +399,8 @@ def dynamics_figure(store: Store, path: Path) -> Path:
         _bars(axes[0][j], lidar, "zone/finite/ind", store, f"{robot}, LiDAR")
         _bars(axes[1][j], vision, "zone/finite/ind", store, f"{robot}, image")
     _legend(axes[0][0])
-    fig.suptitle("IND suite under robot dynamics and observation modality", fontsize=10)
+    fig.suptitle("IND suite under robot dynamics and observation modality (bars: mean ± std over "
+                 "seeds; dots: seeds)", fontsize=10)
     return _save(fig, path)
 
 
@@ -415,7 +424,7 @@ def dynamics_table(store: Store) -> list[str]:
                 continue
             s, v = suite_metric(entry, "eta_s")[0], suite_metric(entry, "eta_v")[0]
             cells.append((s, v))
-            per_seed = np.asarray(entry["per_seed"]["eta_s"], float).mean(axis=1)
+            per_seed = np.asarray(seed_means(entry, "eta_s"))
             failed.append(f"{int(np.sum(per_seed < 0.1))} of {per_seed.size}")
         if cells[0] and cells[1]:
             compared += 1
@@ -443,6 +452,7 @@ def settings_figure(store: Store, path: Path) -> Path:
                              layout="constrained")
     for ax, (title, env_id, suite) in zip(axes, SETTINGS):
         _bars(ax, env_id, suite, store, title)
+    axes[0].set_ylabel("rate (mean ± std over seeds; dots: seeds)", fontsize=8)
     _legend(axes[0])
     return _save(fig, path)
 

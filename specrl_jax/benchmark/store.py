@@ -199,6 +199,12 @@ def suite_seeds(record: dict[str, Any]) -> int:
     return min(counts) if counts else 0
 
 
+def seed_means(entry: dict[str, Any], metric: str) -> list[float]:
+    """Each seed's `metric` over the suite's specs (the record's `per_seed`, seeds x specs), in
+    seed order."""
+    return [sum(row) / len(row) for row in entry["per_seed"][metric]]
+
+
 def suite_metric(entry: dict[str, Any], metric: str) -> tuple[float | None, float | None]:
     """(mean, std) over seeds of a suite's `metric` (the record's summary; None if not there)."""
     group = next(iter(entry["summary"]["groups"].values()), {})

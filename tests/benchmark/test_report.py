@@ -8,7 +8,7 @@ from test_reproduce import CELL, Fakes, fake_result
 
 from specrl_jax import cli
 from specrl_jax.benchmark import grid, report, reproduce
-from specrl_jax.benchmark.store import Store, mark_stale, suite_metric
+from specrl_jax.benchmark.store import Store, mark_stale, seed_means, suite_metric
 
 MEASUREMENTS = """
 - section: Worlds
@@ -133,3 +133,27 @@ def test_the_robot_dynamics_table_compares_point_with_car(tmp_path):
             in lines)
     assert "| DeepLTL | - | - | - | - / - / - |" in lines
     assert lines[-1].startswith("From Point to Car (LiDAR, IND), success falls for 1 of the 1 ")
+
+
+def test_bars_show_each_seed_beside_the_mean(tmp_path):
+    """A world's bars carry one dot per seed at that seed's rate over the suite's specs, so a
+    cell whose seeds split (some never take off) does not hide behind its mean and std."""
+    store = Store(tmp_path)
+    cell = dataclasses.replace(grid.cell("CarLTL0-v0/genz"), seeds=4, episodes=20,
+                               suites=("zone/finite/ind",))
+    fakes = Fakes()
+    reproduce.run_cell(cell, store, log=lambda line: None, train=fakes.train,
+                       evaluate=fakes.evaluate, load=fakes.load, trajectories=False)
+    entry = store.read(cell)["suites"]["zone/finite/ind"]
+    expected = np.mean(entry["per_seed"]["eta_s"], axis=1)
+    np.testing.assert_allclose(seed_means(entry, "eta_s"), expected)
+    plt = report._pyplot()
+    fig, ax = plt.subplots()
+    report._bars(ax, "CarLTL0-v0", "zone/finite/ind", store, "Car")
+    dots = [c.get_offsets() for c in ax.collections if len(c.get_offsets()) == 4]
+    assert len(dots) == 2  # success and violation
+    genz = grid.METHODS.index("genz")
+    np.testing.assert_allclose(dots[0][:, 0], genz - 0.2)
+    np.testing.assert_allclose(dots[0][:, 1], expected)
+    np.testing.assert_allclose(dots[1][:, 1], seed_means(entry, "eta_v"))
+    plt.close(fig)
