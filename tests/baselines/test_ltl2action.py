@@ -120,8 +120,8 @@ def _small_bank_obs(batch_shape):
 
 
 def test_rgcn_table_of_the_bank_equals_each_samples_own_graph_in_outputs_and_gradients():
-    """More samples than bank states: the R-GCN runs once over the bank and is gathered by
-    state; vmapped over the samples (one each), it runs over each sample's graph. Both give the
+    """Enough samples: the R-GCN runs once over the bank's merged subtrees and is gathered by
+    state; vmapped over the samples (one each), it runs over each sample's tree. Both give the
     same logits, values and parameter gradients, alone and vmapped over two seeds."""
     network, obs = _small_bank_obs((2, 3, 8))
     assert obs.graphs.num_states < 24
@@ -151,30 +151,55 @@ def test_rgcn_table_of_the_bank_equals_each_samples_own_graph_in_outputs_and_gra
             np.testing.assert_allclose(x, y, rtol=1e-4, atol=1e-5)
 
 
-def test_rgcn_runs_over_the_bank_only_when_it_has_fewer_states_than_the_samples():
-    """The graphs the R-GCN reads: the bank's S where a forward pass has more than S samples
-    (under `vmap`, more per slice), else the samples' own."""
+def test_rgcn_runs_over_the_merged_subtrees_only_when_they_are_fewer_nodes():
+    """What the R-GCN reads: the bank's distinct subtrees (`FormulaDag`) where they are fewer
+    nodes than the forward pass's padded trees (under `vmap`, one slice's), else the samples'
+    own trees."""
     network, obs = _small_bank_obs((64,))
-    num_states = obs.graphs.num_states
-    assert 4 < num_states < 32
+    graphs = obs.graphs
+    dag_nodes, num_nodes = graphs.dag.tokens.size, graphs.num_nodes
+    most_per_sample = dag_nodes // num_nodes  # at most this many samples: their own trees
+    assert 1 <= most_per_sample < 4
     params = network.init(jax.random.key(0), obs)
     seen = []
 
     def record(call, args, kwargs, context):
         if isinstance(context.module, ltl2action.networks.RGCNEncoder):
-            seen.append(args[0].shape[:-1])  # the graphs' batch shape (tokens [..., N])
+            dag = isinstance(args[0], ltl2action.networks.FormulaDag)
+            seen.append("dag" if dag else args[0].shape[:-1])  # trees: their batch shape
         return call(*args, **kwargs)
 
     def shaped(*shape):
         return jax.tree.map(lambda x: x[:np.prod(shape)].reshape(shape), obs)
 
     with nn.intercept_methods(record):
-        for samples in (num_states, num_states + 1):
+        for samples in (most_per_sample, most_per_sample + 1):
             jax.eval_shape(network.apply, params, shaped(1, samples))
-        for slices in (2, 16):  # 32 and 4 samples per slice
+        for slices in (64 // most_per_sample, 2):  # few and many samples per slice
             jax.eval_shape(jax.vmap(network.apply, in_axes=(None, 0)), params,
                            shaped(slices, 64 // slices))
-    assert seen == [(1, num_states), (num_states,), (num_states,), (4,)]
+    assert seen == [(1, most_per_sample), "dag", (most_per_sample,), "dag"]
+
+
+def test_merged_subtrees_give_each_trees_embedding():
+    """`formula_dag` merges the subtrees that formulas share (here `!green U blue` and its
+    parts), and the R-GCN over the merged nodes gives every state the embedding of its own
+    tree, written out per node."""
+    props = ("blue", "green", "magenta", "yellow")
+    bank = build_bank(["!(green | yellow) U (magenta & (!green U blue))", "!green U blue",
+                       "F (magenta & (!green U blue))", "G F blue & G !green"], props,
+                      zero_or_one(4))
+    graphs = ltl2action.FormulaGraphs(bank)
+    tokens, parent, edge = (np.asarray(x) for x in graphs.tree)
+    assert graphs.dag.tokens.size < int((tokens >= 0).sum())
+    assert graphs.dag.roots.shape == (graphs.num_states,)
+    encoder = ltl2action.networks.RGCNEncoder(num_features(len(props)))
+    params = encoder.init(jax.random.key(1), tokens[:1], parent[:1], edge[:1])
+    merged = np.asarray(encoder.apply(params, graphs.dag))
+    for s in range(graphs.num_states):
+        np.testing.assert_allclose(
+            merged[s], _numpy_rgcn(params, tokens[s], parent[s], edge[s], num_features(4)),
+            rtol=1e-4, atol=1e-5)
 
 
 def _tiny_world(max_steps=6):
@@ -211,7 +236,7 @@ def test_test_time_agent_progresses_the_evaluated_formula_itself():
     policy = ltl2action.make_policy(network, world.alphabet, world.obs_kinds, formulas=candidates)
     task = TaskEnv(world, compiled)
     bank = build_bank(formulas, world.propositions, world.alphabet)  # same formulas, same order
-    obs, state = task.reset(jax.random.key(3), params, 0)
+    obs, _ = task.reset(jax.random.key(3), params, 0)
     first = ltl2action.FormulaObs(obs_parts(obs, world.obs_kinds), jnp.int32(0),
                                   ltl2action.FormulaGraphs(bank))
     net_params = network.init(jax.random.key(0), jax.tree.map(lambda x: x[None], first))

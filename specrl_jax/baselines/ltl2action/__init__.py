@@ -7,9 +7,9 @@ formulas, whose stages advance on the agent's success (LetterWorld, ZoneEnv;
 `tasks.curriculum_progression`), or draws of one of the original's samplers (`Until_1_3_1_2`,
 `Eventually_1_5_1_4`, `Until_1_2_1_1`, ...; the arm). The network reads the current formula's
 syntax tree through a relational GCN (`RGCNEncoder`: 8 rounds of one shared relational
-convolution over 4 edge types, hidden 32, readout at the root, 32-d embedding; where the bank has
-fewer formula states than a forward pass has samples, run once over the bank's graphs and
-gathered by state, `networks.embed_formulas`), concatenated with the observation embedding, into
+convolution over 4 edge types, hidden 32, readout at the root, 32-d embedding; run once over the
+bank's distinct subtrees and gathered by state where that is fewer nodes than the samples' trees,
+`networks.embed_formulas`), concatenated with the observation embedding, into
 an actor [64, 64, 64] ReLU and a critic [64, 64] Tanh. Dense layers start as the original's:
 normal weights with each unit's weight vector of unit norm, zero biases. The encoder can start
 from parameters pretrained on the symbol task (the original's optional LTLBootcamp,
