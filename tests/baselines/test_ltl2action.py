@@ -200,6 +200,13 @@ def test_merged_subtrees_give_each_trees_embedding():
         np.testing.assert_allclose(
             merged[s], _numpy_rgcn(params, tokens[s], parent[s], edge[s], num_features(4)),
             rtol=1e-4, atol=1e-5)
+    # a tree without nodes reads out zeros through the last Dense layer, as its padded form
+    empty = [np.concatenate([x, np.full((1, x.shape[1]), -1 if x is not edge else 0, x.dtype)])
+             for x in (tokens, parent, edge)]
+    with_empty = ltl2action.networks.formula_dag(*empty)
+    assert with_empty.roots[-1] == -1
+    np.testing.assert_allclose(encoder.apply(params, with_empty),
+                               encoder.apply(params, *empty), rtol=1e-5, atol=1e-6)
 
 
 def _tiny_world(max_steps=6):

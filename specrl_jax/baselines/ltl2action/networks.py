@@ -81,7 +81,7 @@ class FormulaDag(NamedTuple):
     child: np.ndarray  # int32[E]
     parent: np.ndarray  # int32[E]
     edge: np.ndarray  # int32[E], the edge's type
-    roots: np.ndarray  # int32[S], each state's whole tree
+    roots: np.ndarray  # int32[S], each state's whole tree (-1: an empty tree)
 
 
 def formula_dag(tokens: np.ndarray, parent: np.ndarray, edge: np.ndarray) -> FormulaDag:
@@ -90,7 +90,7 @@ def formula_dag(tokens: np.ndarray, parent: np.ndarray, edge: np.ndarray) -> For
     its (child subtree, edge type) pairs."""
     ids: dict[tuple, int] = {}
     dag_tokens, child_ids, parent_ids, edge_types = [], [], [], []
-    roots = np.zeros(tokens.shape[0], np.int32)
+    roots = np.full(tokens.shape[0], -1, np.int32)
     for s in range(tokens.shape[0]):
         live = int(np.sum(tokens[s] >= 0))
         below: list[list[tuple[int, int]]] = [[] for _ in range(live)]
@@ -173,7 +173,8 @@ class RGCNEncoder(nn.Module):
 
         # one shared convolution: a loop keeps the compiled program one layer long
         h = jax.lax.fori_loop(0, self.num_layers, convolve, h0)
-        if isinstance(tokens, FormulaDag):
+        if isinstance(tokens, FormulaDag):  # an empty tree reads out zeros, as a padded one
+            h = jnp.concatenate([h, jnp.zeros((1, self.hidden), h.dtype)])
             return _dense(self.out)(h[jnp.asarray(dag.roots)])
         is_root = (mask & (parent.reshape(-1) < 0)).reshape(-1, num_nodes)
         root = jnp.sum(jnp.where(is_root[..., None], h.reshape(*is_root.shape, -1), 0.0), axis=-2)
