@@ -165,9 +165,10 @@ def make_evaluator(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, p
     call many times.
 
     By default the K specs are all the task's specs and every episode runs `horizon` steps
-    (default `params.max_steps`; it sets the world's time limit), both fixed at compile time. Passing `spec_indices` (int32[K],
-    any K) and `horizon` (an int32 scalar, which also sets `max_steps`) makes them arguments:
-    one compiled program then serves groups of specs with different horizons.
+    (default `params.max_steps`; it sets the world's time limit), both fixed at compile time.
+    Passing `spec_indices` (int32[K], any K) and `horizon` (an int32 scalar, which also sets
+    `max_steps`) makes them arguments: one compiled program then serves groups of specs with
+    different horizons.
 
     `sequential_seeds` runs the seeds one after the other (`lax.map`) instead of side by side,
     dividing peak memory by `num_seeds`, for runs too large for one device. With

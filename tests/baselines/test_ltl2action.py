@@ -6,6 +6,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 import spot
 from tiny_learning import early_late, train_rows
 
@@ -205,6 +206,8 @@ def test_merged_subtrees_give_each_trees_embedding():
              for x in (tokens, parent, edge)]
     with_empty = ltl2action.networks.formula_dag(*empty)
     assert with_empty.roots[-1] == -1
+    with pytest.raises(ValueError, match="each after its parent"):
+        ltl2action.networks.formula_dag(tokens[:1, ::-1], parent[:1], edge[:1])
     np.testing.assert_allclose(encoder.apply(params, with_empty),
                                encoder.apply(params, *empty), rtol=1e-5, atol=1e-6)
 

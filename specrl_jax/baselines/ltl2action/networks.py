@@ -93,6 +93,8 @@ def formula_dag(tokens: np.ndarray, parent: np.ndarray, edge: np.ndarray) -> For
     roots = np.full(tokens.shape[0], -1, np.int32)
     for s in range(tokens.shape[0]):
         live = int(np.sum(tokens[s] >= 0))
+        if not ((tokens[s, :live] >= 0).all() and (parent[s, 1:live] < np.arange(1, live)).all()):
+            raise ValueError(f"tree {s}: nodes must come first, each after its parent (preorder)")
         below: list[list[tuple[int, int]]] = [[] for _ in range(live)]
         for k in range(live - 1, -1, -1):  # children first
             key = (int(tokens[s, k]), tuple(sorted(below[k])))
