@@ -75,7 +75,8 @@ class FormulaGraphs(ByContent):
 
 class FormulaDag(NamedTuple):
     """A bank's syntax trees with equal subtrees merged into one node: D distinct subtrees and
-    the E child -> parent edges between them (a child used twice by a parent, twice)."""
+    the E child -> parent edges between them (a child used twice by a parent, twice). The
+    R-GCN reads padded trees in this form too (`padded_forest`)."""
 
     tokens: np.ndarray  # int32[D], each subtree's root token
     child: np.ndarray  # int32[E]
@@ -145,21 +146,8 @@ class RGCNEncoder(nn.Module):
                  edge: jax.Array | None = None) -> jax.Array:
         """Padded trees `(tokens, parent, edge)`, each [..., N] -> [..., out]; or a
         `FormulaDag` -> its S states' embeddings [S, out]."""
-        if isinstance(tokens, FormulaDag):
-            dag = tokens
-            nodes = jnp.asarray(dag.tokens)
-            mask = jnp.ones(nodes.shape, bool)
-            child, receiver, kind = (jnp.asarray(x) for x in (dag.child, dag.parent, dag.edge))
-        else:
-            batch, num_nodes = tokens.shape[:-1], tokens.shape[-1]
-            nodes = tokens.reshape(-1).astype(jnp.int32)
-            parent = parent.reshape(-1, num_nodes).astype(jnp.int32)
-            mask = nodes >= 0
-            offsets = (jnp.arange(parent.shape[0]) * num_nodes)[:, None]
-            child = jnp.arange(nodes.size)
-            receiver = jnp.where(mask & (parent.reshape(-1) >= 0), (parent + offsets).reshape(-1),
-                                 nodes.size)
-            kind = edge.reshape(-1).astype(jnp.int32)
+        dag = tokens if isinstance(tokens, FormulaDag) else padded_forest(tokens, parent, edge)
+        nodes, child, receiver, kind, roots = (jnp.asarray(x, jnp.int32) for x in dag)
         total = nodes.size
         h0 = _dense(self.hidden)(jax.nn.one_hot(nodes, self.features))  # [M, H]
         weight = self.param("relation_kernel", relation_kernel_init,
@@ -171,16 +159,28 @@ class RGCNEncoder(nn.Module):
             by_type = jnp.einsum("nd,rdo->nro", x, weight)  # [M, R, H]
             message = by_type[child, kind]  # one per child -> parent edge
             incoming = jax.ops.segment_sum(message, receiver, num_segments=total + 1)[:total]
-            return jnp.where(mask[:, None], jnp.tanh(by_type[:, 0] + incoming + bias), 0.0)
+            return jnp.tanh(by_type[:, 0] + incoming + bias)
 
         # one shared convolution: a loop keeps the compiled program one layer long
         h = jax.lax.fori_loop(0, self.num_layers, convolve, h0)
-        if isinstance(tokens, FormulaDag):  # an empty tree reads out zeros, as a padded one
-            h = jnp.concatenate([h, jnp.zeros((1, self.hidden), h.dtype)])
-            return _dense(self.out)(h[jnp.asarray(dag.roots)])
-        is_root = (mask & (parent.reshape(-1) < 0)).reshape(-1, num_nodes)
-        root = jnp.sum(jnp.where(is_root[..., None], h.reshape(*is_root.shape, -1), 0.0), axis=-2)
-        return _dense(self.out)(root).reshape(*batch, self.out)
+        h = jnp.concatenate([h, jnp.zeros((1, self.hidden), h.dtype)])  # root -1: an empty tree
+        out = _dense(self.out)(h[roots])
+        return out if dag is tokens else out.reshape(*tokens.shape[:-1], self.out)
+
+
+def padded_forest(tokens: jax.Array, parent: jax.Array, edge: jax.Array) -> FormulaDag:
+    """Padded trees (each [..., N]) as one graph of their node slots: an edge from every live
+    non-root node to its parent, padding slots sending to a spare node (index M, dropped), and
+    each tree's root (-1 for an empty tree)."""
+    num_nodes = tokens.shape[-1]
+    tokens, parent = (x.reshape(-1, num_nodes).astype(jnp.int32) for x in (tokens, parent))
+    offsets = (jnp.arange(tokens.shape[0]) * num_nodes)[:, None]
+    live = tokens >= 0
+    receiver = jnp.where(live & (parent >= 0), parent + offsets, tokens.size)
+    is_root = live & (parent < 0)
+    roots = jnp.where(is_root.any(-1), jnp.argmax(is_root, -1) + offsets[:, 0], -1)
+    return FormulaDag(tokens.reshape(-1), jnp.arange(tokens.size), receiver.reshape(-1),
+                      edge.reshape(-1), roots)
 
 
 def uses_dag(graphs: FormulaGraphs, num_samples: int) -> bool:
