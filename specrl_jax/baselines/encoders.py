@@ -14,7 +14,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from specrl_jax.baselines.ppo.networks import MLP, LetterCNN
+from specrl_jax.baselines.ppo.networks import MLP, LetterCNN, PatchConv
 
 #: world observation kinds -> the encoder part they feed
 PART_OF_KIND = {"grid": "grid", "lidar": "vector", "range_bearing": "vector", "vector": "vector",
@@ -65,8 +65,8 @@ class ImageCNN(nn.Module):
         x = image.astype(jnp.float32) / 255.0
         batch = x.shape[:-3]
         x = x.reshape(-1, *x.shape[-3:])
-        for width in self.channels:
-            x = nn.relu(nn.Conv(width, (5, 5), strides=(2, 2), padding=((1, 1), (1, 1)))(x))
+        for i, width in enumerate(self.channels):
+            x = nn.relu(PatchConv(width, size=5, stride=2, padding=1, name=f"Conv_{i}")(x))
         return x.reshape(*batch, -1)
 
 

@@ -222,6 +222,34 @@ def test_letter_cnn_matches_the_library_convolution():
     np.testing.assert_allclose(out, reference(params, image), rtol=1e-5, atol=1e-6)
 
 
+def test_image_cnn_matches_the_library_convolution_per_seed_in_value_and_gradient():
+    import flax.linen as nn
+
+    from specrl_jax.baselines.encoders import ImageCNN
+
+    images = jax.random.randint(jax.random.key(0), (2, 3, 64, 64, 3), 0, 256).astype(jnp.uint8)
+    cnn = ImageCNN()
+    params = jax.vmap(lambda k: cnn.init(k, images[0])["params"])(jax.random.split(jax.random.key(1), 2))
+
+    def reference(p, x):
+        x = x.astype(jnp.float32) / 255.0
+        for i, width in enumerate(cnn.channels):
+            conv = nn.Conv(width, (5, 5), strides=(2, 2), padding=((1, 1), (1, 1)))
+            x = nn.relu(conv.apply({"params": p[f"Conv_{i}"]}, x))
+        return x.reshape(x.shape[0], -1)
+
+    def loss(apply):
+        return lambda p, x: jnp.sum(jnp.sin(apply(p, x)))
+
+    ours = jax.jit(jax.vmap(jax.value_and_grad(loss(lambda p, x: cnn.apply({"params": p}, x)))))
+    library = jax.jit(jax.vmap(jax.value_and_grad(loss(reference))))
+    (value, grad), (ref_value, ref_grad) = ours(params, images), library(params, images)
+    assert cnn.apply({"params": jax.tree.map(lambda x: x[0], params)}, images[0]).shape == (3, 32)
+    np.testing.assert_allclose(value, ref_value, rtol=1e-4)
+    for a, b in zip(jax.tree.leaves(grad), jax.tree.leaves(ref_grad)):
+        np.testing.assert_allclose(a, b, rtol=1e-3, atol=1e-4 * float(jnp.max(jnp.abs(b))))
+
+
 def test_resume_gives_identical_continuation(tmp_path, monkeypatch):
     clock = iter(range(1000))  # every chunk takes 1 s: a resumed run's clock must read as a straight one's
     monkeypatch.setattr(runs, "time", SimpleNamespace(perf_counter=lambda: float(next(clock))))

@@ -82,3 +82,15 @@ def test_paper_numbers_are_data_with_sources():
     names = {c.name for c in grid.GRID}
     for n in numbers:  # every number sits beside a cell of the grid
         assert f"{n.env}/{n.method}" in names and n.suite in grid.cell(f"{n.env}/{n.method}").suites
+
+
+def test_image_cells_train_and_evaluate_on_the_64_pixel_camera():
+    import specrl_jax
+    from specrl_jax.benchmark import experiment
+
+    vision = [c for c in grid.GRID if "Vision" in c.env_id]
+    assert len(vision) == 15 and all(dict(c.env_options) == {"image_size": 64} for c in vision)
+    assert all(not c.env_options for c in grid.GRID if "Vision" not in c.env_id)
+    world, _ = specrl_jax.make(vision[0].env_id, **dict(vision[0].env_options))
+    assert world.observation_space.spaces["image"].shape == (64, 64, 3)
+    assert experiment.family(vision[0].env_id) == experiment.family("PointLTL0-v0")
