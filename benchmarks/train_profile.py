@@ -23,7 +23,8 @@ fusions and custom calls (about the kernels an accelerator launches), `while` lo
 without a known trip count (on a GPU each iteration of one without copies its predicate to the
 host: a host sync; `while_loop_sources` names the `lax.while_loop`s), host callbacks, and
 `cost_analysis` flops and bytes (loop bodies counted once). A table is printed and one JSON row
-(`harness.row`) appended to `--out`.
+(`harness.row`) appended to `--out`. `--kernels N` traces one rollout and one PPO step with JAX's
+profiler and adds their kernel launches, kernel time and N longest kernels (by HLO instruction).
 
 `--devices 1 2 ...` profiles the training over the first N local devices for each N, the env batch
 sharded over them as `specrl-jax train` shards it; the default env count per seed grows with N
@@ -41,6 +42,8 @@ from __future__ import annotations
 
 import argparse
 import collections
+import glob
+import gzip
 import json
 import os
 import re
@@ -70,6 +73,7 @@ METHODS = ("genz", "deepltl", "ltl2action", "gcrl", "rad")
 _OP = re.compile(r"=\s.*?\s([a-z][\w\-]*)\(")
 _TARGET = re.compile(r'custom_call_target="([^"]+)"')
 _SOURCE = re.compile(r'source_file="([^"]+)" source_line=(\d+)')
+_NAME = re.compile(r"^\s*(?:ROOT\s+)?%?([\w.\-]+) = ")
 #: cross-device operations (and their asynchronous starts) in the partitioned program
 COLLECTIVES = ("all-gather", "all-to-all", "all-reduce", "collective-permute", "reduce-scatter")
 
@@ -264,6 +268,59 @@ def time_parts(compiled: dict[str, Any], runner: Any, n: int, repeats: int
     return seconds, jax.device_get(epochs), metrics, runner
 
 
+def trace_events(fn: Callable[[], Any]) -> tuple[list[dict[str, Any]], dict[int, str]]:
+    """The complete events of one call of `fn` under JAX's profiler (its Perfetto trace) and
+    the trace's process names by id."""
+    with tempfile.TemporaryDirectory() as directory:
+        with jax.profiler.trace(directory, create_perfetto_trace=True):
+            jax.block_until_ready(fn())
+        (path,) = glob.glob(os.path.join(directory, "**", "perfetto_trace.json.gz"), recursive=True)
+        with gzip.open(path) as f:
+            trace = json.load(f)
+    events = trace["traceEvents"] if isinstance(trace, dict) else trace
+    processes = {e["pid"]: e["args"]["name"] for e in events
+                 if e.get("ph") == "M" and e.get("name") == "process_name"}
+    return [e for e in events if e.get("ph") == "X"], processes
+
+
+def kernel_times(fn: Callable[[], Any], compiled: Any, top: int) -> dict[str, Any]:
+    """Where one call of a compiled part spends device time: its kernels (on an accelerator, the
+    events of the `/device:` processes; on the CPU, the events named after the program's HLO
+    instructions, less the loops and calls that hold others) summed by name, the `top` longest
+    with their milliseconds and launches, their total and the number of launches."""
+    events, processes = trace_events(fn)
+    devices = {pid for pid, name in processes.items() if name.startswith("/device:")}
+    if devices:
+        kernels = [e for e in events if e["pid"] in devices]
+    else:
+        names = {name.group(1) for line in compiled.as_text().splitlines()
+                 if (name := _NAME.match(line)) and (op := _OP.search(line))
+                 and op.group(1) not in ("while", "conditional", "call")}
+        kernels = [e for e in events if e["name"] in names]
+    ms: collections.Counter = collections.Counter()
+    launches: collections.Counter = collections.Counter()
+    for e in kernels:
+        name = (e.get("args") or {}).get("hlo_op") or e["name"]
+        ms[name] += e.get("dur", 0.0) / 1e3
+        launches[name] += 1
+    return {"kernel_ms": round(sum(ms.values()), 3), "launches": sum(launches.values()),
+            "top": [[name, round(t, 3), launches[name]] for name, t in ms.most_common(top)]}
+
+
+def part_kernels(compiled: dict[str, Any], runner: Any, top: int) -> dict[str, Any]:
+    """`kernel_times` of one update's rollout and of one PPO step on its rollout (the rollout
+    donates `runner`)."""
+    stored = ()
+
+    def rollout():
+        nonlocal stored
+        stored = compiled["rollout"](runner)
+        return stored
+
+    return {"rollout": kernel_times(rollout, compiled["rollout"], top),
+            "update": kernel_times(lambda: compiled["update"](*stored), compiled["update"], top)}
+
+
 def host_work(metrics: Any, runner: Any, repeats: int) -> dict[str, float]:
     """The training loop's host work after a chunk: the metrics' copy, the checkpoint's write."""
     host = {"metrics_get_s": min(timed(lambda: jax.device_get(metrics), repeats))}
@@ -287,6 +344,7 @@ def profile(args: argparse.Namespace, num_devices: int = 1) -> dict[str, Any]:
     notes["compile_wall_s"] = round(time.perf_counter() - start, 2)
     seconds, epochs, metrics, runner = time_parts(compiled, runner, n, args.repeats)
     host = host_work(metrics, runner, args.repeats)
+    kernels = part_kernels(compiled, runner, args.kernels) if args.kernels else None
 
     per_update = {part: statistics.median(t) / n for part, t in seconds.items()}
     steps = seeds * cfg.batch_size
@@ -317,6 +375,7 @@ def profile(args: argparse.Namespace, num_devices: int = 1) -> dict[str, Any]:
         "seconds_per_repeat": seconds, "host_per_chunk": host,
         "host_syncs_per_update_min": host_syncs(programs, cfg.num_steps, full_epochs),
         "programs": programs,
+        **({"kernels": kernels} if kernels else {}),
     }
 
 
@@ -352,6 +411,10 @@ def table(result: dict[str, Any]) -> str:
                  f"steps/s per seed; host per chunk: metrics {host['metrics_get_s'] * 1e3:.1f} ms, "
                  f"checkpoint {host['checkpoint_s'] * 1e3:.1f} ms "
                  f"({host['checkpoint_bytes'] / 2**20:.1f} MiB)")
+    for part, k in (r.get("kernels") or {}).items():
+        lines.append(f"{part}: {k['launches']} kernel launches, {k['kernel_ms']:.2f} ms of kernels; "
+                     "the longest (ms, launches):")
+        lines += [f"  {ms:9.3f} {n:6}  {name[:90]}" for name, ms, n in k["top"]]
     return "\n".join(lines)
 
 
@@ -391,6 +454,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--devices", type=int, nargs="+", default=[1], metavar="N",
                         help="profile over the first N local devices, for each N (weak "
                              "scaling: N times --num-envs envs per seed)")
+    parser.add_argument("--kernels", type=int, default=0, metavar="N",
+                        help="trace one rollout and one PPO step with JAX's profiler and list "
+                             "their N longest kernels (0: no trace)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", default=None, help="append the JSON row to this file")
     parser.add_argument("--plot", default=None, metavar="PNG",

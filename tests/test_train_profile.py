@@ -5,8 +5,8 @@ One fresh process profiles GenZ-LTL on LetterLTL0-v0 (1 seed, 2 x 4 envs x 16 st
 batch sharded over two forced CPU devices, as training shards it: the row has the harness's keys
 and the profile's, every time and rate is positive and finite, and the rollout plus the update
 (timed apart) come close to the training's own full step, and both programs are data parallel
-(no gathers in the rollout, the gradients summed across devices). The weak-scaling efficiency is checked
-as a function.
+(no gathers in the rollout, the gradients summed across devices), and the profiler's kernel list
+is the programs' own instructions. The weak-scaling efficiency is checked as a function.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "benchmarks" / "train_profile.py"
 ARGS = ["--env", "LetterLTL0-v0", "--method", "genz", "--seeds", "1", "--num-envs", "4",
         "--num-steps", "16", "--minibatches", "2", "--epochs", "1", "--updates", "1",
-        "--repeats", "2", "--map-bank", "16", "--devices", "2"]
+        "--repeats", "2", "--map-bank", "16", "--devices", "2", "--kernels", "4"]
 ROW_KEYS = {"figure", "value", "device", "batch", "versions", "date", "command"}
 PARTS = ("rollout", "update", "full")
 
@@ -67,6 +67,17 @@ def test_train_profile_runs_tiny_and_its_parts_add_up(tmp_path):
     # gathering the minibatches so that every device computes the whole update
     assert row["programs"]["rollout"]["collectives"] == {}
     assert row["programs"]["update"]["collectives"].get("all-reduce", 0) >= 1
+    # the profiler's kernels: the longest of each part, HLO instructions of its program; the CPU's
+    # loops are left out, so the kernels of two devices sum to at most twice the part's time (a
+    # loaded CPU times loosely: 4x slack)
+    for part in ("rollout", "update"):
+        kernels = row["kernels"][part]
+        assert len(kernels["top"]) == 4 and kernels["launches"] >= sum(n for _, _, n in kernels["top"])
+        assert all(ms > 0 and not name.startswith("while") for name, ms, _ in kernels["top"])
+        times = [ms for _, ms, _ in kernels["top"]]
+        assert times == sorted(times, reverse=True)
+        assert 0 < kernels["kernel_ms"] < 4 * 2 * 1e3 * row[f"{part}_s"]
+    assert "kernel launches" in done.stdout
 
 
 def test_weak_scaling_efficiency_is_the_rate_over_the_first_count_scaled(monkeypatch):
