@@ -12,6 +12,7 @@ from specrl_jax.specs.curricula import (
     CurriculumState,
     Stage,
     curriculum,
+    with_stay,
 )
 from specrl_jax.specs.formulas import (
     ltl2action_sampler,
@@ -63,11 +64,11 @@ __all__ = [
     "genz_tasks",
     "is_satisfiable",
     "list_suites",
-    "register_suite",
     "ltl2action_sampler",
     "parse",
     "reach_avoid_formula",
     "reach_only_formula",
+    "register_suite",
     "sample_eventually",
     "sample_genz_subgoal",
     "sample_reach_avoid",
@@ -81,4 +82,5 @@ __all__ = [
     "suite_info",
     "suite_version",
     "unregister_suite",
+    "with_stay",
 ]

@@ -151,6 +151,25 @@ GENZ_ZONE = Curriculum("genz/zone", (Stage((GenZSubgoals(3),), threshold=0.99, a
 CURRICULA = {c.name: c for c in (DEEPLTL_LETTER, DEEPLTL_ZONE, GENZ_LETTER, GENZ_ZONE)}
 
 
+def with_stay(base: Curriculum, steps: int) -> Curriculum:
+    """`base` with its reach-stay tasks' stays scaled so that the longest is `steps` env steps
+    (their ratios kept: DeepLTL's Zone 30 / 60 becomes steps / 2 / steps)."""
+    if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
+        raise ValueError(f"the stay must be a positive number of steps, got {steps!r}")
+    stays = [s.num_stay for stage in base.stages for s in stage.samplers if isinstance(s, ReachStay)]
+    if not stays:
+        raise ValueError(f"curriculum {base.name!r} has no reach-stay tasks to lengthen")
+
+    def scaled(sampler: Sampler) -> Sampler:
+        if not isinstance(sampler, ReachStay):
+            return sampler
+        return dataclasses.replace(sampler, num_stay=max(1, round(sampler.num_stay * steps / max(stays))))
+
+    stages = tuple(dataclasses.replace(stage, samplers=tuple(map(scaled, stage.samplers)))
+                   for stage in base.stages)
+    return Curriculum(f"{base.name}+stay{steps}", stages)
+
+
 def curriculum(name: str) -> Curriculum:
     """Look up a curriculum by name ("deepltl/letter", "deepltl/zone", "genz/letter", "genz/zone")."""
     if name not in CURRICULA:

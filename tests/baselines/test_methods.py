@@ -236,3 +236,17 @@ def test_training_rewards_see_the_world_reward_as_their_originals_do():
     assert float(reward) == 0.0
     done = dict(wall, success=~false)  # completing the task: +1 whatever the world gives
     assert float(deepltl.make_method(world, params).env.signals(done)[0]) == 1.0
+
+
+def test_deepltl_stay_steps_lengthen_the_reach_stay_tasks_it_trains_on():
+    from specrl_jax.baselines.spec import get_method
+
+    world, params = specrl_jax.make("PointLTL0-v0")
+    default = deepltl.make_method(world, params).env.task.source.sampler.curriculum
+    longer = deepltl.make_method(world, params, stay_steps=600).env.task.source.sampler.curriculum
+    assert default.name == "deepltl/zone" and longer.name == "deepltl/zone+stay600"
+    get_method("deepltl").check_options({"stay_steps": 600})
+    with pytest.raises(ValueError, match="accepted: stay_steps"):
+        get_method("deepltl").check_options({"stay": 600})
+    with pytest.raises(ValueError, match="no reach-stay tasks"):
+        deepltl.make_method(*specrl_jax.make("LetterLTL0-v0"), stay_steps=100)

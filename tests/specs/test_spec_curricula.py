@@ -179,3 +179,26 @@ def test_letter_curriculum_formulas_are_satisfiable_and_deterministic():
             assert len(pairs) == depth and all(not r & a for r, a in pairs), text
     with pytest.raises(ValueError, match="propositions"):
         sampler.sample_formulas(0, 0, 2, COLOURS)
+
+
+def test_longer_stays_scale_every_reach_stay_task_and_nothing_else():
+    longer = specs.with_stay(cur.DEEPLTL_ZONE, 600)
+    assert longer.name == "deepltl/zone+stay600"
+    for old, new in zip(cur.DEEPLTL_ZONE.stages, longer.stages, strict=True):
+        assert (new.probs, new.threshold, new.aggregate, new.temperature) == (
+            old.probs, old.threshold, old.aggregate, old.temperature)
+        for a, b in zip(old.samplers, new.samplers, strict=True):
+            if isinstance(a, cur.ReachStay):
+                assert (b.num_stay, b.num_avoid) == (a.num_stay * 10, a.num_avoid)
+            else:
+                assert a == b
+    sampler = cur.CurriculumSampler(longer, len(COLOURS))
+    state = sampler.init().replace(stage=jnp.int32(4))
+    s, _ = jax.device_get(sampler.sample_batch(jax.random.split(jax.random.key(0), 64), state, None))
+    stay = s.epsilon[:, 0]
+    assert stay.any() and (s.repeat_last[stay] == 300).all()
+    for bad in (0, -5, 2.5, True):
+        with pytest.raises(ValueError, match="positive number of steps"):
+            specs.with_stay(cur.DEEPLTL_ZONE, bad)
+    with pytest.raises(ValueError, match="no reach-stay tasks"):
+        specs.with_stay(cur.DEEPLTL_LETTER, 100)

@@ -34,7 +34,7 @@ from specrl_jax.baselines.spec import MethodSpec
 from specrl_jax.baselines.task_sources import curriculum_of
 from specrl_jax.baselines.train_env import TaskTrainEnv, pass_world_reward
 from specrl_jax.envs.wrappers import select_tree
-from specrl_jax.specs import CurriculumSampler, curriculum
+from specrl_jax.specs import CurriculumSampler, curriculum, with_stay
 from specrl_jax.tasks import SequenceSource, StatefulPolicy, TaskEnv
 
 PAD, EPSILON, NULL = 0, 1, 2  # token ids before the alphabet symbols
@@ -162,15 +162,20 @@ class DeepLTL(Method):
         )
 
 
-def make_method(world: Any, params: Any, family: str | None = None) -> DeepLTL:
-    """DeepLTL on any single-agent world, with the curriculum of `family` (letter or zone)."""
+def make_method(world: Any, params: Any, family: str | None = None,
+                stay_steps: int | None = None) -> DeepLTL:
+    """DeepLTL on any single-agent world, with the curriculum of `family` (letter or zone).
+
+    `stay_steps`: the longest stay of the curriculum's reach-stay tasks, the others scaled with
+    it (`specs.with_stay`; None: the original's 30 and 60 steps on Zone)."""
     family = families.name_of(world, family)
     network = network_for(world, family)
     alphabet = jnp.asarray(world.alphabet, bool)
     name = curriculum_of("deepltl", family)
     if name is None:
         raise ValueError(f"DeepLTL has no curriculum for world family {family!r}")
-    source = SequenceSource(CurriculumSampler(curriculum(name), world.num_propositions), alphabet)
+    tasks = curriculum(name) if stay_steps is None else with_stay(curriculum(name), stay_steps)
+    source = SequenceSource(CurriculumSampler(tasks, world.num_propositions), alphabet)
     kinds = dict(world.obs_kinds)
 
     def observe(obs, state):
@@ -307,4 +312,5 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: dict[str, st
 SPEC = MethodSpec(
     name="deepltl", title="DeepLTL", make_method=make_method, ppo_config=ppo_config,
     make_policy=make_policy, summarise=summarise, deterministic_infinite=lambda family: False,
+    options=("stay_steps",),
 )
