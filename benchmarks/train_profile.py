@@ -24,7 +24,8 @@ without a known trip count (on a GPU each iteration of one without copies its pr
 host: a host sync; `while_loop_sources` names the `lax.while_loop`s), host callbacks, and
 `cost_analysis` flops and bytes (loop bodies counted once). A table is printed and one JSON row
 (`harness.row`) appended to `--out`. `--kernels N` traces one rollout and one PPO step with JAX's
-profiler and adds their kernel launches, kernel time and N longest kernels (by HLO instruction).
+profiler and adds their kernel launches, kernel time and N longest kernels (by HLO instruction;
+kernels XLA runs inside CUDA graphs, its command buffers, count as launched one by one).
 
 `--devices 1 2 ...` profiles the training over the first N local devices for each N, the env batch
 sharded over them as `specrl-jax train` shards it; the default env count per seed grows with N
@@ -268,30 +269,36 @@ def time_parts(compiled: dict[str, Any], runner: Any, n: int, repeats: int
     return seconds, jax.device_get(epochs), metrics, runner
 
 
-def trace_events(fn: Callable[[], Any]) -> tuple[list[dict[str, Any]], dict[int, str]]:
-    """The complete events of one call of `fn` under JAX's profiler (its Perfetto trace) and
-    the trace's process names by id."""
+def profiler_events(fn: Callable[[], Any]) -> list[dict[str, Any]]:
+    """The events of one call of `fn` under JAX's profiler (its Perfetto trace)."""
     with tempfile.TemporaryDirectory() as directory:
         with jax.profiler.trace(directory, create_perfetto_trace=True):
             jax.block_until_ready(fn())
         (path,) = glob.glob(os.path.join(directory, "**", "perfetto_trace.json.gz"), recursive=True)
         with gzip.open(path) as f:
             trace = json.load(f)
-    events = trace["traceEvents"] if isinstance(trace, dict) else trace
-    processes = {e["pid"]: e["args"]["name"] for e in events
-                 if e.get("ph") == "M" and e.get("name") == "process_name"}
-    return [e for e in events if e.get("ph") == "X"], processes
+    return trace["traceEvents"] if isinstance(trace, dict) else trace
+
+
+def complete_events(events: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], dict[Any, str]]:
+    """A trace's complete events, its process names by pid and thread names by (pid, tid)."""
+    names = {e["pid"] if e["name"] == "process_name" else (e["pid"], e.get("tid")): e["args"]["name"]
+             for e in events if e.get("ph") == "M" and e.get("name") in ("process_name", "thread_name")}
+    return [e for e in events if e.get("ph") == "X"], names
 
 
 def kernel_times(fn: Callable[[], Any], compiled: Any, top: int) -> dict[str, Any]:
     """Where one call of a compiled part spends device time: its kernels (on an accelerator, the
-    events of the `/device:` processes; on the CPU, the events named after the program's HLO
-    instructions, less the loops and calls that hold others) summed by name, the `top` longest
-    with their milliseconds and launches, their total and the number of launches."""
-    events, processes = trace_events(fn)
-    devices = {pid for pid, name in processes.items() if name.startswith("/device:")}
+    events on the `Stream #` threads of the `/device:` processes less copies and memsets; on the
+    CPU, the events named after the program's HLO instructions, less the loops and calls that
+    hold others) summed by name, the `top` longest with their milliseconds and launches, their
+    total and the number of launches."""
+    events, names = complete_events(profiler_events(fn))
+    devices = {pid for pid, name in names.items() if str(name).startswith("/device:")}
     if devices:
-        kernels = [e for e in events if e["pid"] in devices]
+        kernels = [e for e in events if e["pid"] in devices
+                   and names.get((e["pid"], e.get("tid")), "").startswith("Stream #")
+                   and not e["name"].startswith(("Memcpy", "Memset"))]
     else:
         names = {name.group(1) for line in compiled.as_text().splitlines()
                  if (name := _NAME.match(line)) and (op := _OP.search(line))

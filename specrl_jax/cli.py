@@ -340,7 +340,7 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
     arg("--method-option", type=env_option, action="append", default=[], metavar="KEY=VALUE",
         help="an option of the method (repeatable), e.g. for ltl2action sampler=curriculum, "
              "encoder=ENCODER.msgpack (a pretrained formula encoder), freeze_encoder=True, "
-             "pretrain_steps=10000000; for rad sampler=rad; for deepltl stay_steps=600 (longer "
+             "pretrain_steps=10000000; for rad sampler=rad; for deepltl stay_steps=300 (longer "
              "reach-stay tasks); a wrong key lists the accepted ones"),
     *PROCESS_ARGS,
 )

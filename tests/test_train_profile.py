@@ -101,3 +101,22 @@ def test_scaling_plot_draws_profile_rows_and_refuses_none(tmp_path, monkeypatch)
     assert (tmp_path / "scaling.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(ValueError, match="no profile rows"):
         train_profile.plot_scaling(rows[2:], str(tmp_path / "none.png"))
+
+
+def test_kernels_of_a_gpu_trace_are_the_stream_kernels_without_copies(monkeypatch):
+    monkeypatch.syspath_prepend(str(SCRIPT.parent))
+    import train_profile
+
+    meta = [("process_name", 1, None, "/host:CPU"), ("process_name", 2, None, "/device:GPU:0"),
+            ("thread_name", 2, 7, "Stream #7(Compute,MemcpyD2H)"), ("thread_name", 2, 9, "CUPTI overhead")]
+    events = [{"ph": "M", "name": kind, "pid": pid, "tid": tid, "args": {"name": name}}
+              for kind, pid, tid, name in meta]
+    spans = [(2, 7, "loop_add_fusion", 30.0, {}), (2, 7, "loop_add_fusion", 10.0, {}),
+             (2, 7, "sm90_gemm", 50.0, {"hlo_op": "dot.3"}), (2, 7, "MemcpyD2H", 5.0, {}),
+             (2, 9, "overhead", 99.0, {}), (1, 1, "PjitFunction", 500.0, {})]
+    events += [{"ph": "X", "pid": pid, "tid": tid, "name": name, "dur": dur, "args": args}
+               for pid, tid, name, dur, args in spans]
+    monkeypatch.setattr(train_profile, "profiler_events", lambda fn: events)
+    kernels = train_profile.kernel_times(lambda: None, None, 5)
+    assert kernels == {"kernel_ms": 0.09, "launches": 3,
+                       "top": [["dot.3", 0.05, 1], ["loop_add_fusion", 0.04, 2]]}

@@ -20,6 +20,7 @@ from typing import Literal
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from flax import struct
 
 from specrl_jax.specs import sequences as seqs
@@ -154,8 +155,9 @@ CURRICULA = {c.name: c for c in (DEEPLTL_LETTER, DEEPLTL_ZONE, GENZ_LETTER, GENZ
 def with_stay(base: Curriculum, steps: int) -> Curriculum:
     """`base` with its reach-stay tasks' stays scaled so that the longest is `steps` env steps
     (their ratios kept: DeepLTL's Zone 30 / 60 becomes steps / 2 / steps)."""
-    if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
+    if isinstance(steps, bool) or not isinstance(steps, int | np.integer) or steps < 1:
         raise ValueError(f"the stay must be a positive number of steps, got {steps!r}")
+    steps = int(steps)
     stays = [s.num_stay for stage in base.stages for s in stage.samplers if isinstance(s, ReachStay)]
     if not stays:
         raise ValueError(f"curriculum {base.name!r} has no reach-stay tasks to lengthen")

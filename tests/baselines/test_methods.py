@@ -250,3 +250,5 @@ def test_deepltl_stay_steps_lengthen_the_reach_stay_tasks_it_trains_on():
         get_method("deepltl").check_options({"stay": 600})
     with pytest.raises(ValueError, match="no reach-stay tasks"):
         deepltl.make_method(*specrl_jax.make("LetterLTL0-v0"), stay_steps=100)
+    with pytest.raises(ValueError, match="must fit in the world's training episode of 1000"):
+        deepltl.make_method(world, params, stay_steps=999)

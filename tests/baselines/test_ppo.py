@@ -245,6 +245,8 @@ def test_image_cnn_matches_the_library_convolution_per_seed_in_value_and_gradien
     library = jax.jit(jax.vmap(jax.value_and_grad(loss(reference))))
     (value, grad), (ref_value, ref_grad) = ours(params, images), library(params, images)
     assert cnn.apply({"params": jax.tree.map(lambda x: x[0], params)}, images[0]).shape == (3, 32)
+    with pytest.raises(ValueError, match="needs an input of at least 3 x 3; got 1 x 1"):
+        cnn.init(jax.random.key(0), images[0, :, :32, :32])  # 32 -> 15 -> 7 -> 3 -> 1 -> none
     np.testing.assert_allclose(value, ref_value, rtol=1e-4)
     for a, b in zip(jax.tree.leaves(grad), jax.tree.leaves(ref_grad)):
         np.testing.assert_allclose(a, b, rtol=1e-3, atol=1e-4 * float(jnp.max(jnp.abs(b))))

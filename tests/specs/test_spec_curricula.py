@@ -197,6 +197,7 @@ def test_longer_stays_scale_every_reach_stay_task_and_nothing_else():
     s, _ = jax.device_get(sampler.sample_batch(jax.random.split(jax.random.key(0), 64), state, None))
     stay = s.epsilon[:, 0]
     assert stay.any() and (s.repeat_last[stay] == 300).all()
+    assert specs.with_stay(cur.DEEPLTL_ZONE, np.int64(600)) == longer
     for bad in (0, -5, 2.5, True):
         with pytest.raises(ValueError, match="positive number of steps"):
             specs.with_stay(cur.DEEPLTL_ZONE, bad)

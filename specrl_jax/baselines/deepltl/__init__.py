@@ -175,6 +175,10 @@ def make_method(world: Any, params: Any, family: str | None = None,
     if name is None:
         raise ValueError(f"DeepLTL has no curriculum for world family {family!r}")
     tasks = curriculum(name) if stay_steps is None else with_stay(curriculum(name), stay_steps)
+    if stay_steps is not None and stay_steps + 1 >= params.max_steps:
+        raise ValueError(f"stay_steps={stay_steps}: a stay of {stay_steps} + 1 steps must fit in "
+                         f"the world's training episode of {params.max_steps} steps, after "
+                         "reaching the zone; take fewer or a longer episode")
     source = SequenceSource(CurriculumSampler(tasks, world.num_propositions), alphabet)
     kinds = dict(world.obs_kinds)
 

@@ -80,6 +80,10 @@ class PatchConv(nn.Module):
         if p:
             x = jnp.pad(x, [(0, 0)] * (x.ndim - 3) + [(p, p), (p, p), (0, 0)])
         rows, cols = (x.shape[-3] - k) // s + 1, (x.shape[-2] - k) // s + 1
+        if rows < 1 or cols < 1:
+            raise ValueError(f"a {k}x{k} convolution (stride {s}, padding {p}) needs an input of at "
+                             f"least {k - 2 * p} x {k - 2 * p}; got {x.shape[-3] - 2 * p} x "
+                             f"{x.shape[-2] - 2 * p} (a smaller image or grid than the network takes)")
         # (dy, dx) in row-major order, matching kernel.reshape(k * k * C, features)
         views = [x[..., dy:dy + s * (rows - 1) + 1:s, dx:dx + s * (cols - 1) + 1:s, :]
                  for dy in range(k) for dx in range(k)]
