@@ -1,0 +1,191 @@
+"""The image CNN's convolution under a batch of parameters: which implementation a seed-batched
+(`vmap`) PPO should use.
+
+The paper's image CNN (`encoders.ImageCNN`: 5 layers, kernel 5, stride 2, padding 1) is timed for
+`--seeds` parameter sets side by side, as training runs them, in three implementations:
+
+  library  `lax.conv_general_dilated` (what `flax.linen.Conv` calls); under `vmap` its forward is
+           a feature-grouped convolution, its weight gradient a batch-grouped one
+  patches  `PatchConv`, the package's: one matmul over the strided views (the patch matrix)
+  hybrid   the library's forward and input gradient, the weight gradient as the patch matmul
+           (`jax.custom_vjp`)
+
+For each `--cases SIZE:IMAGES` (IMAGES per seed) it times the forward pass (the rollout's policy
+inference) and the value and gradient of a scalar loss (a minibatch step), median of `--repeats`
+calls after a warm-up, reads each program's temporary memory from XLA's memory analysis, and
+checks that every implementation's gradients equal the library's (an error otherwise). An implementation that runs
+out of device memory is recorded as such. One JSON row per case and implementation
+(`benchmarks/harness.py`; appended to `--out` if given).
+
+    python benchmarks/lab/image_conv.py --seeds 5 --cases 64:2048 256:512
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+
+import harness
+
+from specrl_jax.baselines.encoders import ImageCNN
+
+SIZE, STRIDE, PADDING = 5, 2, 1
+NUMBERS = ("NHWC", "HWIO", "NHWC")
+
+
+def library_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    return jax.lax.conv_general_dilated(x, kernel, (STRIDE, STRIDE), ((PADDING, PADDING),) * 2,
+                                        dimension_numbers=NUMBERS)
+
+
+def patch_matrix(x: jax.Array) -> jax.Array:
+    """`[N, H, W, C]` -> `[N, H', W', SIZE * SIZE * C]`, the views in `PatchConv`'s order."""
+    x = jnp.pad(x, ((0, 0), (PADDING, PADDING), (PADDING, PADDING), (0, 0)))
+    rows, cols = (x.shape[1] - SIZE) // STRIDE + 1, (x.shape[2] - SIZE) // STRIDE + 1
+    return jnp.concatenate([x[:, dy:dy + STRIDE * (rows - 1) + 1:STRIDE,
+                              dx:dx + STRIDE * (cols - 1) + 1:STRIDE, :]
+                            for dy in range(SIZE) for dx in range(SIZE)], axis=-1)
+
+
+@jax.custom_vjp
+def hybrid_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    return library_conv(x, kernel)
+
+
+def _hybrid_forward(x, kernel):
+    return library_conv(x, kernel), (x, kernel)
+
+
+def _hybrid_backward(saved, g):
+    x, kernel = saved
+    (dx,) = jax.vjp(lambda x: library_conv(x, kernel), x)[1](g)
+    dk = jnp.einsum("nhwp,nhwf->pf", patch_matrix(x), g).reshape(kernel.shape)
+    return dx, dk
+
+
+hybrid_conv.defvjp(_hybrid_forward, _hybrid_backward)
+
+
+def cnn_with(conv: Callable[[jax.Array, jax.Array], jax.Array]) -> Callable:
+    """`ImageCNN`'s function with its convolution replaced by `conv` (the same parameters)."""
+
+    def apply(params: Any, image: jax.Array) -> jax.Array:
+        x = image.astype(jnp.float32) / 255.0
+        for i in range(len(ImageCNN.channels)):
+            layer = params["params"][f"Conv_{i}"]
+            x = jax.nn.relu(conv(x, layer["kernel"]) + layer["bias"])
+        return x.reshape(x.shape[0], -1)
+
+    return apply
+
+
+IMPLEMENTATIONS = {
+    "library": cnn_with(library_conv),
+    "patches": ImageCNN().apply,
+    "hybrid": cnn_with(hybrid_conv),
+}
+
+
+def programs(apply: Callable, params: Any, images: jax.Array) -> dict[str, Any]:
+    """The compiled forward and gradient programs of `apply` over the seed axis."""
+    def loss(p, x):
+        return jnp.sum(jnp.sin(apply(p, x)))
+
+    forward = jax.jit(jax.vmap(apply)).lower(params, images).compile()
+    gradient = jax.jit(jax.vmap(jax.value_and_grad(loss))).lower(params, images).compile()
+    return {"forward": forward, "gradient": gradient}
+
+
+def median_ms(fn: Callable[[], Any], repeats: int) -> float:
+    jax.block_until_ready(fn())
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        jax.block_until_ready(fn())
+        times.append(time.perf_counter() - start)
+    return statistics.median(times) * 1e3
+
+
+def temp_gib(compiled: Any) -> float | None:
+    memory = compiled.memory_analysis()
+    return None if memory is None else round(memory.temp_size_in_bytes / 2**30, 3)
+
+
+def measure(name: str, seeds: int, size: int, images_per_seed: int, repeats: int,
+            reference: Any) -> tuple[dict[str, Any], Any]:
+    """One implementation at one case: its times, memory, gradients' largest relative difference
+    to `reference` (the library's, or None), and its gradients."""
+    key = jax.random.key(0)
+    images = jax.random.randint(key, (seeds, images_per_seed, size, size, 3), 0, 256).astype(jnp.uint8)
+    params = jax.vmap(lambda k: ImageCNN().init(k, images[0, :1]))(jax.random.split(key, seeds))
+    row: dict[str, Any] = {"implementation": name, "image_size": size, "seeds": seeds,
+                           "images_per_seed": images_per_seed}
+    try:
+        compiled = programs(IMPLEMENTATIONS[name], params, images)
+        row["forward_ms"] = round(median_ms(lambda: compiled["forward"](params, images), repeats), 3)
+        row["gradient_ms"] = round(median_ms(lambda: compiled["gradient"](params, images), repeats), 3)
+        row["forward_temp_gib"] = temp_gib(compiled["forward"])
+        row["gradient_temp_gib"] = temp_gib(compiled["gradient"])
+        grads = jax.device_get(compiled["gradient"](params, images)[1])
+    except jax.errors.JaxRuntimeError as error:
+        if "RESOURCE_EXHAUSTED" not in str(error):
+            raise
+        row["out_of_memory"] = str(error).splitlines()[0][:200]
+        return row, None
+    if reference is not None:
+        row["gradient_max_rel_diff"] = max(
+            float(np.max(np.abs(a - b)) / (np.max(np.abs(b)) + 1e-12))
+            for a, b in zip(jax.tree.leaves(grads), jax.tree.leaves(reference), strict=True))
+        if row["gradient_max_rel_diff"] > 1e-3:
+            raise AssertionError(f"{name}'s gradients differ from the library convolution's: {row}")
+    return row, grads
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seeds", type=int, default=5, help="parameter sets side by side (vmap)")
+    parser.add_argument("--cases", nargs="+", default=["64:2048", "256:512"], metavar="SIZE:IMAGES",
+                        help="image size and images per seed")
+    parser.add_argument("--implementations", nargs="+", default=list(IMPLEMENTATIONS),
+                        choices=list(IMPLEMENTATIONS))
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--out", default=None, help="append the JSON rows to this file")
+    args = parser.parse_args(argv)
+    try:
+        args.cases = [tuple(int(v) for v in case.split(":")) for case in args.cases]
+    except ValueError:
+        parser.error(f"--cases takes SIZE:IMAGES pairs of ints, e.g. 64:2048; got {args.cases}")
+    return args
+
+
+def main() -> None:
+    args = parse_args()
+    for size, images in args.cases:
+        reference = None
+        for name in sorted(args.implementations, key=lambda n: n != "library"):
+            row, grads = measure(name, args.seeds, size, images, args.repeats, reference)
+            if name == "library":
+                reference = grads
+            if "out_of_memory" in row:
+                value = "out of memory"
+            else:
+                value = (f"forward {row['forward_ms']:.2f} ms, forward and gradient "
+                         f"{row['gradient_ms']:.2f} ms")
+            print(f"{size:4} x {size:<4} {images:6} images/seed  {name:8} {value}", flush=True)
+            harness.emit(harness.row(f"Image CNN under vmap, {name}, {size}x{size}", value,
+                                     args.seeds * images, **row), args.out)
+
+
+if __name__ == "__main__":
+    main()
