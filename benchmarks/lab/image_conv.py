@@ -39,6 +39,7 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import harness
 
 from specrl_jax.baselines.encoders import ImageCNN
+from specrl_jax.baselines.ppo.networks import patch_matrix
 
 SIZE, STRIDE, PADDING = 5, 2, 1
 NUMBERS = ("NHWC", "HWIO", "NHWC")
@@ -47,15 +48,6 @@ NUMBERS = ("NHWC", "HWIO", "NHWC")
 def library_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
     return jax.lax.conv_general_dilated(x, kernel, (STRIDE, STRIDE), ((PADDING, PADDING),) * 2,
                                         dimension_numbers=NUMBERS)
-
-
-def patch_matrix(x: jax.Array) -> jax.Array:
-    """`[N, H, W, C]` -> `[N, H', W', SIZE * SIZE * C]`, the views in `PatchConv`'s order."""
-    x = jnp.pad(x, ((0, 0), (PADDING, PADDING), (PADDING, PADDING), (0, 0)))
-    rows, cols = (x.shape[1] - SIZE) // STRIDE + 1, (x.shape[2] - SIZE) // STRIDE + 1
-    return jnp.concatenate([x[:, dy:dy + STRIDE * (rows - 1) + 1:STRIDE,
-                              dx:dx + STRIDE * (cols - 1) + 1:STRIDE, :]
-                            for dy in range(SIZE) for dx in range(SIZE)], axis=-1)
 
 
 @jax.custom_vjp
@@ -70,7 +62,7 @@ def _hybrid_forward(x, kernel):
 def _hybrid_backward(saved, g):
     x, kernel = saved
     (dx,) = jax.vjp(lambda x: library_conv(x, kernel), x)[1](g)
-    dk = jnp.einsum("nhwp,nhwf->pf", patch_matrix(x), g).reshape(kernel.shape)
+    dk = jnp.einsum("nhwp,nhwf->pf", patch_matrix(x, SIZE, STRIDE, PADDING), g).reshape(kernel.shape)
     return dx, dk
 
 

@@ -74,20 +74,28 @@ class PatchConv(nn.Module):
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
-        k, s, p = self.size, self.stride, self.padding
+        k = self.size
         kernel = self.param("kernel", nn.initializers.lecun_normal(), (k, k, x.shape[-1], self.features))
         bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
-        if p:
-            x = jnp.pad(x, [(0, 0)] * (x.ndim - 3) + [(p, p), (p, p), (0, 0)])
-        rows, cols = (x.shape[-3] - k) // s + 1, (x.shape[-2] - k) // s + 1
-        if rows < 1 or cols < 1:
-            raise ValueError(f"a {k}x{k} convolution (stride {s}, padding {p}) needs an input of at "
-                             f"least {k - 2 * p} x {k - 2 * p}; got {x.shape[-3] - 2 * p} x "
-                             f"{x.shape[-2] - 2 * p} (a smaller image or grid than the network takes)")
-        # (dy, dx) in row-major order, matching kernel.reshape(k * k * C, features)
-        views = [x[..., dy:dy + s * (rows - 1) + 1:s, dx:dx + s * (cols - 1) + 1:s, :]
-                 for dy in range(k) for dx in range(k)]
-        return jnp.concatenate(views, axis=-1) @ kernel.reshape(-1, self.features) + bias
+        patches = patch_matrix(x, k, self.stride, self.padding)
+        return patches @ kernel.reshape(-1, self.features) + bias
+
+
+def patch_matrix(x: jax.Array, size: int, stride: int, padding: int) -> jax.Array:
+    """`float[..., H, W, C]` -> `[..., H', W', size * size * C]`: the size x size strided views of
+    the zero-padded input side by side, in (dy, dx) row-major order, matching a
+    `[size, size, C, F]` kernel reshaped to `[size * size * C, F]`."""
+    k, s, p = size, stride, padding
+    if p:
+        x = jnp.pad(x, [(0, 0)] * (x.ndim - 3) + [(p, p), (p, p), (0, 0)])
+    rows, cols = (x.shape[-3] - k) // s + 1, (x.shape[-2] - k) // s + 1
+    if rows < 1 or cols < 1:
+        raise ValueError(f"a {k}x{k} convolution (stride {s}, padding {p}) needs an input of at "
+                         f"least {k - 2 * p} x {k - 2 * p}; got {x.shape[-3] - 2 * p} x "
+                         f"{x.shape[-2] - 2 * p} (a smaller image or grid than the network takes)")
+    views = [x[..., dy:dy + s * (rows - 1) + 1:s, dx:dx + s * (cols - 1) + 1:s, :]
+             for dy in range(k) for dx in range(k)]
+    return jnp.concatenate(views, axis=-1)
 
 
 class LetterCNN(nn.Module):
