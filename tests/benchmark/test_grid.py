@@ -67,6 +67,10 @@ def test_selection_by_pattern_and_estimates():
              / grid.TRAIN_RATES[("PointLTL2-v0", "genz")][0])
     assert grid.training_rate(grid.cell("CarLTL0-v0/gcrl")) == pytest.approx(
         grid.TRAIN_RATES[("CarLTL0-v0", "genz")][0] * ratio)
+    # an image cell trains at its update's pace: every epoch, as RAD, unless GenZ-LTL's KL stop
+    deepltl = grid.cell("PointLTL0Vision-v0/deepltl")
+    assert grid.training_rate(deepltl) == pytest.approx(grid.TRAIN_RATES[("PointLTL0Vision-v0", "rad")][0])
+    assert grid.estimate_seconds(deepltl) > grid.estimate_seconds(grid.cell("PointLTL0Vision-v0/genz"))
 
 
 def test_paper_numbers_are_data_with_sources():
