@@ -9,6 +9,9 @@ The paper's image CNN (`encoders.ImageCNN`: 5 layers, kernel 5, stride 2, paddin
   patches  `PatchConv`, the package's: one matmul over the strided views (the patch matrix)
   hybrid   the library's forward and input gradient, the weight gradient as the patch matmul
            (`jax.custom_vjp`)
+  recompute  `ImageCNN(library_forward=True)`: the library's forward, saving only each layer's
+           input; the backward pass is the patch matmul's, its patch matrix rebuilt from that
+           input (`jax.custom_vjp`)
 
 For each `--cases SIZE:IMAGES` (IMAGES per seed) it times the forward pass (the rollout's policy
 inference) and the value and gradient of a scalar loss (a minibatch step), median of `--repeats`
@@ -39,15 +42,14 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import harness
 
 from specrl_jax.baselines.encoders import ImageCNN
+from specrl_jax.baselines.ppo import networks
 from specrl_jax.baselines.ppo.networks import patch_matrix
 
 SIZE, STRIDE, PADDING = 5, 2, 1
-NUMBERS = ("NHWC", "HWIO", "NHWC")
 
 
 def library_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
-    return jax.lax.conv_general_dilated(x, kernel, (STRIDE, STRIDE), ((PADDING, PADDING),) * 2,
-                                        dimension_numbers=NUMBERS)
+    return networks.library_conv(x, kernel, STRIDE, PADDING)
 
 
 @jax.custom_vjp
@@ -86,6 +88,7 @@ IMPLEMENTATIONS = {
     "library": cnn_with(library_conv),
     "patches": ImageCNN().apply,
     "hybrid": cnn_with(hybrid_conv),
+    "recompute": ImageCNN(library_forward=True).apply,
 }
 
 
@@ -174,7 +177,7 @@ def main() -> None:
             else:
                 value = (f"forward {row['forward_ms']:.2f} ms, forward and gradient "
                          f"{row['gradient_ms']:.2f} ms")
-            print(f"{size:4} x {size:<4} {images:6} images/seed  {name:8} {value}", flush=True)
+            print(f"{size:4} x {size:<4} {images:6} images/seed  {name:9} {value}", flush=True)
             harness.emit(harness.row(f"Image CNN under vmap, {name}, {size}x{size}", value,
                                      args.seeds * images, **row), args.out)
 

@@ -222,13 +222,14 @@ def test_letter_cnn_matches_the_library_convolution():
     np.testing.assert_allclose(out, reference(params, image), rtol=1e-5, atol=1e-6)
 
 
-def test_image_cnn_matches_the_library_convolution_per_seed_in_value_and_gradient():
+@pytest.mark.parametrize("library_forward", [False, True])
+def test_image_cnn_matches_the_library_convolution_per_seed_in_value_and_gradient(library_forward):
     import flax.linen as nn
 
     from specrl_jax.baselines.encoders import ImageCNN
 
     images = jax.random.randint(jax.random.key(0), (2, 3, 64, 64, 3), 0, 256).astype(jnp.uint8)
-    cnn = ImageCNN()
+    cnn = ImageCNN(library_forward=library_forward)
     params = jax.vmap(lambda k: cnn.init(k, images[0])["params"])(jax.random.split(jax.random.key(1), 2))
 
     def reference(p, x):
