@@ -283,9 +283,8 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: dict[str, st
         no_extra = jnp.zeros(alphabet.shape[0], bool)
         valid = spec.seq_valid[q]
 
-        def value(ids):
-            cands = jax.vmap(lambda c: seq_obs(obs, task_state, c, no_extra))(ids)
-            return network.apply(params, cands).value
+        def value(ids):  # mapped over the network: the observation is encoded once
+            return jax.vmap(lambda c: network.apply(params, seq_obs(obs, task_state, c, no_extra)).value)(ids)
 
         values = score_chosen(value, valid & due)
         best = jnp.argmax(jnp.where(valid, values, -jnp.inf)).astype(jnp.int32)

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from functools import partial
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -310,10 +309,12 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
         reach, avoid, valid = _split_letters(*first)
         allowed = valid & ~infeasible
 
-        def score(ids):
-            images = jax.vmap(partial(reduce_observation, obs, obs_kinds))(reach[ids], avoid[ids])
-            out = network.apply(params, images)
+        def score_one(r, a):
+            out = network.apply(params, reduce_observation(obs, obs_kinds, r, a))
             return out.value - out.multiplier * out.cost_value
+
+        def score(ids):  # mapped over the network: parts no candidate changes are encoded once
+            return jax.vmap(score_one)(reach[ids], avoid[ids])
 
         scores = score_chosen(score, first_of_kind(first[1], allowed) & due)
         best = jnp.argmax(jnp.where(allowed, scores, -jnp.inf))
