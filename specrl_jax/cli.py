@@ -22,6 +22,7 @@ import atexit
 import gc
 import sys
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -412,10 +413,16 @@ def run_command(args: argparse.Namespace) -> int:
     episodes = args.episodes or (100 if gpu else 20)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    suites = ("letter/finite/ind", "letter/finite/ood")
+    evaluation = None
     if args.params:  # a file of `--seeds` runs (default 1), e.g. the committed GPU-trained agent
         params = experiment.load_params("genz", "LetterLTL0-v0", args.params, args.seeds or 1)
         summary = {"loaded_from": args.params}
     else:
+        if gpu:  # the evaluator compiles on the host while the device trains
+            shapes = experiment.param_shapes("genz", "LetterLTL0-v0", seeds)
+            evaluation = ThreadPoolExecutor(1).submit(
+                experiment.prepare_evaluation, "genz", "LetterLTL0-v0", shapes, suites, episodes)
         overrides = experiment.default_overrides("gpu" if gpu else "cpu", total, "letter", "genz")
         if not gpu:  # a short budget: fewer epochs per update keeps it to minutes on two cores
             overrides.update(num_envs=32, num_steps=64, update_epochs=10)
@@ -430,9 +437,11 @@ def run_command(args: argparse.Namespace) -> int:
                                            map_bank=map_bank, restart=args.restart)
         print(f"trained GenZ-LTL: {seeds} x {summary['env_steps_per_seed']:,} steps at "
               f"{summary['env_steps_per_s']:,.0f} env-steps/s")
-    suites = ("letter/finite/ind", "letter/finite/ood")
     print(f"evaluating on {', '.join(suites)}: {episodes} episodes per spec and seed", flush=True)
-    results = experiment.evaluate("genz", "LetterLTL0-v0", params, suites, episodes)
+    if evaluation is None:
+        results = experiment.evaluate("genz", "LetterLTL0-v0", params, suites, episodes)
+    else:
+        results = evaluation.result()(jax.device_get(params))
     path = report.write_json(out / "results.json", results, {"train": summary, "episodes": episodes})
     print(report.markdown_tables(results))
     print(f"wrote {path}" + ("" if args.params else f"; the run directory is {out}/"))

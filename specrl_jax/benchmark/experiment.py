@@ -314,7 +314,23 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
     (`eval.suites.evaluate_suites`: infinite suites over 10 finite horizons unless `horizon`;
     episodes sharded over `devices`, default every local device).
     Returns `SuiteResult`s with one row per trained seed."""
-    from specrl_jax.eval.suites import evaluate_suites
+    return prepare_evaluation(method, env_id, params, suites, episodes, log, deterministic, label,
+                              horizon, env_options, devices, method_options, seeds,
+                              **policy_options)(params)
+
+
+def prepare_evaluation(method: str, env_id: str, params: Any, suites: Sequence[str],
+                       episodes: int, log: Callable[[str], None] = print,
+                       deterministic: bool | None = None, label: str | None = None,
+                       horizon: int | None = None, env_options: dict[str, Any] | None = None,
+                       devices: Sequence[Any] | None = None,
+                       method_options: dict[str, Any] | None = None,
+                       seeds: Sequence[int] | None = None,
+                       **policy_options: Any) -> Callable[[Any], list]:
+    """`evaluate`'s program, compiled now for parameters shaped as `params` (arrays, or
+    `param_shapes`' structs: compiled while the parameters train); returns the function that
+    evaluates parameters of those shapes (`eval.suites.compile_suites`)."""
+    from specrl_jax.eval.suites import compile_suites
 
     spec = get_method(method)
     if spec.usable_suites is not None:  # RAD: co-safe suites only
@@ -325,7 +341,7 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
         policy_options.setdefault("suites", tuple(suites))  # LTL2Action progresses their formulas
     policy = make_policy(method, world, method_obj, deterministic, None, **policy_options)
     num_seeds = jax.tree.leaves(params)[0].shape[0]
-    return evaluate_suites(
+    return compile_suites(
         policy, env_id, world, env_params, suites, episodes,
         seeds=range(1, num_seeds + 1) if seeds is None else seeds,
         policy_params=params, params_per_seed=True, horizon=horizon,
@@ -333,20 +349,32 @@ def evaluate(method: str, env_id: str, params: Any, suites: Sequence[str], episo
     )
 
 
-def load_params(method: str, env_id: str, path: str | Path, num_seeds: int,
-                env_options: dict[str, Any] | None = None,
-                method_options: dict[str, Any] | None = None) -> Any:
-    """Read `params.msgpack` written by `train` (leading seed axis), or one seed's parameters
-    without that axis (the results store's `params_seed1.msgpack`), returned with it."""
+def param_shapes(method: str, env_id: str, num_seeds: int | None = None,
+                 env_options: dict[str, Any] | None = None,
+                 method_options: dict[str, Any] | None = None) -> Any:
+    """`jax.ShapeDtypeStruct`s of a method's parameters on a world (with a leading axis of
+    `num_seeds` if given), found without running the env or the network."""
     world, env_params = make(env_id, **(env_options or {}))
     spec = get_method(method)
     method_obj = make_method(method, world, env_params, None, method_options)
-    # shapes only: running the env's reset and the network's init eagerly takes seconds on a CPU
     obs, _ = jax.eval_shape(method_obj.env.reset, jax.random.key(0), method_obj.init_task_params())
     one_obs = jax.tree.map(lambda x: jax.ShapeDtypeStruct((1, *x.shape), x.dtype), obs)
     one = jax.eval_shape(method_obj.network.init, jax.random.key(0), one_obs)
     if spec.param_shapes is not None:  # parameters beyond the PPO network's
         one = spec.param_shapes(method_obj, one)
+    if num_seeds is None:
+        return one
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct((num_seeds, *x.shape), x.dtype), one)
+
+
+def load_params(method: str, env_id: str, path: str | Path, num_seeds: int,
+                env_options: dict[str, Any] | None = None,
+                method_options: dict[str, Any] | None = None) -> Any:
+    """Read `params.msgpack` written by `train` (leading seed axis), or one seed's parameters
+    without that axis (the results store's `params_seed1.msgpack`), returned with it."""
+    spec = get_method(method)
+    # shapes only: running the env's reset and the network's init eagerly takes seconds on a CPU
+    one = param_shapes(method, env_id, None, env_options, method_options)
     stored = read_params(path, what=f"{spec.title} parameters")
     leaf = jax.tree.leaves(stored)[0]
     if num_seeds == 1 and np.ndim(leaf) == len(jax.tree.leaves(one)[0].shape):

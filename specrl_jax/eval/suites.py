@@ -65,7 +65,8 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
                     log: Callable[[str], None] = print,
                     devices: Sequence[Any] | None = None) -> list[SuiteResult]:
     """Evaluate `policy` on every suite; one compiled program runs each group of suites that
-    share a horizon (the specs and the horizon are its arguments).
+    share a horizon (the specs and the horizon are its arguments). `compile_suites`, then run
+    on `policy_params`.
 
     Args:
         policy: a policy function or `StatefulPolicy` (see `tasks.policy`).
@@ -80,6 +81,20 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
     Returns:
         One `SuiteResult` per suite, in the order given.
     """
+    return compile_suites(policy, env_id, env, params, suites, episodes, seeds, policy_params,
+                          params_per_seed, horizon, infinite_horizon, label, log, devices)(policy_params)
+
+
+def compile_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Sequence[str],
+                   episodes: int, seeds: Sequence[int], policy_params: Any = None,
+                   params_per_seed: bool = False, horizon: int | None = None,
+                   infinite_horizon: int | None = None, label: str = "",
+                   log: Callable[[str], None] = print,
+                   devices: Sequence[Any] | None = None) -> Callable[[Any], list[SuiteResult]]:
+    """`evaluate_suites`' program compiled now for parameters shaped as `policy_params` (arrays,
+    or `jax.ShapeDtypeStruct`s: compiled before the parameters exist, e.g. while they train);
+    the returned function evaluates parameters of those shapes (host arrays are placed as the
+    program takes them)."""
     check_suites(suites, env)
     seeds = check_seeds(seeds)
     by_horizon: dict[int, list[str]] = {}
@@ -103,30 +118,35 @@ def evaluate_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Seq
                                original=originals(formulas, env), params_per_seed=params_per_seed,
                                devices=devices)
 
-    def arguments(steps: int, group_specs: list[int]) -> tuple:
+    def arguments(policy_params: Any, steps: int, group_specs: list[int]) -> tuple:
         padded = group_specs + group_specs[-1:] * (width - len(group_specs))
         horizon_argument = None if len(groups) == 1 else jnp.int32(steps)
         return policy_params, seed_array, jnp.asarray(padded, jnp.int32), horizon_argument
 
     start = time.perf_counter()
-    executable = evaluator.lower(*arguments(*groups[0][:2])).compile()
+    executable = evaluator.lower(*arguments(policy_params, *groups[0][:2])).compile()
     log(f"compiled the evaluator in {time.perf_counter() - start:.1f}s")
-    results = {}
-    for steps, group_specs, indices in groups:
-        start = time.perf_counter()
-        table = EpisodeTable(*(None if x is None else np.asarray(x)[:, :len(group_specs)]
-                               for x in jax.device_get(executable(*arguments(steps, group_specs)))))
-        if table.num_accepting_original is not None and (table.num_accepting_original < 0).all():
-            table = table._replace(num_accepting_original=None)  # no spec of the group has one
-        log(f"evaluated {len(seeds)} seeds x {len(group_specs)} specs x {episodes} episodes x "
-            f"{steps} steps in {time.perf_counter() - start:.1f}s")
-        result = EvalResult(
-            env_id=env_id, spec_names=tuple(formulas[i] for i in group_specs),
-            is_finite=np.asarray(compiled.is_finite)[group_specs],
-            seeds=tuple(int(s) for s in seeds), episodes_per_seed=episodes, horizon=steps,
-            table=table,
-        )
-        for name, spec_indices in indices.items():
-            local = [i - group_specs[0] for i in spec_indices]
-            results[name] = SuiteResult(env_id, name, label, result.select(local))
-    return [results[name] for name in suites]
+
+    def evaluate(policy_params: Any) -> list[SuiteResult]:
+        results = {}
+        for steps, group_specs, indices in groups:
+            start = time.perf_counter()
+            out = jax.device_get(executable(*arguments(policy_params, steps, group_specs)))
+            table = EpisodeTable(*(None if x is None else np.asarray(x)[:, :len(group_specs)]
+                                   for x in out))
+            if table.num_accepting_original is not None and (table.num_accepting_original < 0).all():
+                table = table._replace(num_accepting_original=None)  # no spec of the group has one
+            log(f"evaluated {len(seeds)} seeds x {len(group_specs)} specs x {episodes} episodes x "
+                f"{steps} steps in {time.perf_counter() - start:.1f}s")
+            result = EvalResult(
+                env_id=env_id, spec_names=tuple(formulas[i] for i in group_specs),
+                is_finite=np.asarray(compiled.is_finite)[group_specs],
+                seeds=tuple(int(s) for s in seeds), episodes_per_seed=episodes, horizon=steps,
+                table=table,
+            )
+            for name, spec_indices in indices.items():
+                local = [i - group_specs[0] for i in spec_indices]
+                results[name] = SuiteResult(env_id, name, label, result.select(local))
+        return [results[name] for name in suites]
+
+    return evaluate

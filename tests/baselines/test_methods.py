@@ -175,6 +175,14 @@ def test_evaluate_runs_each_trained_seed_on_the_suite_protocol(monkeypatch):
     assert table.success.shape == (2, 2, 3) and suite.result.horizon == 75
     assert suite.result.seeds == (1, 2) and suite.method == "GenZ-LTL"
     assert np.all(table.steps <= 75) and not np.any(table.success & table.violation)
+    # compiled from the parameters' shapes alone (as `specrl-jax run` does while it trains)
+    shapes = experiment.param_shapes("genz", "LetterLTL0-v0", 2)
+    assert jax.tree.map(lambda x: x.shape, shapes) == jax.tree.map(lambda x: x.shape, two_seeds)
+    evaluate = experiment.prepare_evaluation("genz", "LetterLTL0-v0", shapes,
+                                             ["letter/finite/ind"], 3, log=lambda s: None)
+    (again,) = evaluate(jax.device_get(two_seeds))
+    for a, b in zip(again.result.table, table, strict=True):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_aborted_episodes_count_as_other_and_leave_mu_acc():
