@@ -22,7 +22,7 @@ import atexit
 import gc
 import sys
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -103,6 +103,22 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument(*flags, **options)
         p.set_defaults(run=fn)
     return parser
+
+
+def in_background(fn: Callable[..., Any], *args: Any) -> Future:
+    """`fn(*args)` in a daemon thread (an interrupted command exits without waiting for it)."""
+    import threading
+
+    future: Future = Future()
+
+    def run() -> None:
+        try:
+            future.set_result(fn(*args))
+        except Exception as error:  # noqa: BLE001 (handed to whoever waits on the result)
+            future.set_exception(error)
+
+    threading.Thread(target=run, daemon=True).start()
+    return future
 
 
 def enable_compilation_cache() -> None:
@@ -421,7 +437,7 @@ def run_command(args: argparse.Namespace) -> int:
     else:
         if gpu:  # the evaluator compiles on the host while the device trains
             shapes = experiment.param_shapes("genz", "LetterLTL0-v0", seeds)
-            evaluation = ThreadPoolExecutor(1).submit(
+            evaluation = in_background(
                 experiment.prepare_evaluation, "genz", "LetterLTL0-v0", shapes, suites, episodes)
         overrides = experiment.default_overrides("gpu" if gpu else "cpu", total, "letter", "genz")
         if not gpu:  # a short budget: fewer epochs per update keeps it to minutes on two cores

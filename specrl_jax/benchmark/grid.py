@@ -276,7 +276,8 @@ def training_rate(c: Cell) -> float:
         return TRAIN_RATES[(env, key)][0]
     if "Vision" in env:
         base = TRAIN_RATES.get((VISION_BASE, key), TRAIN_RATES[(VISION_BASE, "rad")])[0]
-        physics = 1 / ENV_RATES[env.replace("Vision", "")][0] - 1 / ENV_RATES["PointLTL0-v0"][0]
+        point = ENV_RATES["PointLTL0-v0"][0]
+        physics = 1 / ENV_RATES.get(env.replace("Vision", ""), (point,))[0] - 1 / point
         return 1 / (1 / base + physics)
     if (env, "genz") in TRAIN_RATES:
         return TRAIN_RATES[(env, "genz")][0] * _method_factor(key)

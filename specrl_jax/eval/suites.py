@@ -93,8 +93,8 @@ def compile_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Sequ
                    devices: Sequence[Any] | None = None) -> Callable[[Any], list[SuiteResult]]:
     """`evaluate_suites`' program compiled now for parameters shaped as `policy_params` (arrays,
     or `jax.ShapeDtypeStruct`s: compiled before the parameters exist, e.g. while they train);
-    the returned function evaluates parameters of those shapes (host arrays are placed as the
-    program takes them)."""
+    the returned function evaluates parameters of those shapes, placed as the program takes
+    them."""
     check_suites(suites, env)
     seeds = check_seeds(seeds)
     by_horizon: dict[int, list[str]] = {}
@@ -128,6 +128,7 @@ def compile_suites(policy: Any, env_id: str, env: Any, params: Any, suites: Sequ
     log(f"compiled the evaluator in {time.perf_counter() - start:.1f}s")
 
     def evaluate(policy_params: Any) -> list[SuiteResult]:
+        policy_params = jax.device_put(policy_params, executable.input_shardings[0][0])
         results = {}
         for steps, group_specs, indices in groups:
             start = time.perf_counter()
