@@ -9,6 +9,8 @@ The paper's image CNN (`encoders.ImageCNN`: 5 layers, kernel 5, stride 2, paddin
   patches  `PatchConv`, the package's: one matmul over the strided views (the patch matrix)
   hybrid   the library's forward and input gradient, the weight gradient as the patch matmul
            (`jax.custom_vjp`)
+  shifted  the sum over the kernel's size x size offsets of one matmul per strided view (no patch
+           matrix: XLA may fuse each view into its matmul)
   recompute  `ImageCNN(library_forward=True)`: the library's forward, saving only each layer's
            input; the backward pass is the patch matmul's, its patch matrix rebuilt from that
            input (`jax.custom_vjp`)
@@ -71,6 +73,18 @@ def _hybrid_backward(saved, g):
 hybrid_conv.defvjp(_hybrid_forward, _hybrid_backward)
 
 
+def shifted_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    p = PADDING
+    padded = jnp.pad(x, [(0, 0)] * (x.ndim - 3) + [(p, p), (p, p), (0, 0)])
+    rows, cols = networks.conv_output_size(x.shape[-3:-1], SIZE, STRIDE, PADDING)
+    out = 0.0
+    for dy in range(SIZE):
+        for dx in range(SIZE):
+            view = padded[..., dy:dy + STRIDE * (rows - 1) + 1:STRIDE, dx:dx + STRIDE * (cols - 1) + 1:STRIDE, :]
+            out = out + view @ kernel[dy, dx]
+    return out
+
+
 def cnn_with(conv: Callable[[jax.Array, jax.Array], jax.Array]) -> Callable:
     """`ImageCNN`'s function with its convolution replaced by `conv` (the same parameters)."""
 
@@ -88,6 +102,7 @@ IMPLEMENTATIONS = {
     "library": cnn_with(library_conv),
     "patches": ImageCNN().apply,
     "hybrid": cnn_with(hybrid_conv),
+    "shifted": cnn_with(shifted_conv),
     "recompute": ImageCNN(library_forward=True).apply,
 }
 
