@@ -16,7 +16,8 @@ median of `--repeats` (`--parallel-compile` compiles the update and full program
   host     what the training loop does on the host after each chunk of updates (10 in
            `specrl-jax train`): the metrics' `device_get` and the checkpoint's write
 
-Seeds run side by side as in training (`vmap`; one seed unbatched). Rates count every seed's env
+Seeds run side by side as in training (`vmap`; one seed unbatched; `--learn-in-turn`: the
+update part and the full step's learning one seed after the other). Rates count every seed's env
 steps (`seeds x num_envs x num_steps` per update); gradient steps are per seed (seeds take theirs
 side by side). Each compiled program is described from `compile().as_text()`: HLO instructions,
 fusions and custom calls (about the kernels an accelerator launches), `while` loops with and
@@ -154,6 +155,7 @@ def build(args: argparse.Namespace, num_devices: int) -> tuple[Any, Any, dict[st
     overrides.update({k: v for k, v in (
         ("num_envs", num_envs), ("num_steps", args.num_steps),
         ("num_minibatches", args.minibatches), ("update_epochs", args.epochs)) if v is not None})
+    overrides["learn_seeds_in_turn"] = args.learn_in_turn
     map_bank = (families.get(world_family).map_bank_size(platform) if args.map_bank is None
                 else args.map_bank)
     key_bank, key_train = jax.random.split(jax.random.key(args.seed))
@@ -182,6 +184,9 @@ def compile_parts(trainer: Any, runner: Any, seeds: int, n: int, parallel: bool
         _, _, key_epochs = jax.random.split(runner.key, 3)
         return trainer.learn(runner.params, runner.opt_state, traj, runner.obs, key_epochs)
 
+    def learn_in_turn(runners, trajs):
+        return jax.lax.map(lambda args: learn(*args), (runners, trajs))
+
     lowered, seconds, loops, programs = {}, {}, {}, {}
 
     def compile_part(part: str) -> Any:
@@ -193,7 +198,8 @@ def compile_parts(trainer: Any, runner: Any, seeds: int, n: int, parallel: bool
 
     for part, fn, inputs, options in (  # tracing holds the GIL: one program at a time
             ("rollout", runs.over_seeds(rollout, seeds), (runner,), {"donate_argnums": 0}),
-            ("update", runs.over_seeds(learn, seeds), None, {}),
+            ("update", learn_in_turn if trainer.config.learn_seeds_in_turn and seeds > 1
+             else runs.over_seeds(learn, seeds), None, {}),
             ("full", runs.seed_batched(trainer, seeds), (runner, n, jnp.int32(1)),
              {"static_argnums": 1, "donate_argnums": 0})):
         start = time.perf_counter()
@@ -378,6 +384,7 @@ def profile(args: argparse.Namespace, num_devices: int = 1) -> dict[str, Any]:
         "grad_steps_per_update": grad_steps, "grad_steps_per_s": grad_steps / per_update["update"],
         "compile_s": {part: round(s, 2) for part, s in compile_s.items()},
         "parallel_compile": args.parallel_compile,
+        "learn_in_turn": args.learn_in_turn,
         "compilation_cache": jax.config.jax_compilation_cache_dir,
         "seconds_per_repeat": seconds, "host_per_chunk": host,
         "host_syncs_per_update_min": host_syncs(programs, cfg.num_steps, full_epochs),
@@ -455,6 +462,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                              "kind; 0: exact resets)")
     parser.add_argument("--env-option", type=_option, action="append", default=[],
                         metavar="KEY=VALUE", help="an override of the world, e.g. image_size=64")
+    parser.add_argument("--learn-in-turn", action="store_true",
+                        help="seeds learn one after the other, each to its own KL stop "
+                             "(PPOConfig.learn_seeds_in_turn)")
     parser.add_argument("--parallel-compile", action="store_true",
                         help="compile the update and full programs side by side (each one's "
                              "compile time then shares the CPU with the other's)")

@@ -110,7 +110,15 @@ def over_seeds(fn: Callable, num_seeds: int, in_axes: int | tuple[int | None, ..
 
 
 def seed_batched(trainer: Trainer, num_seeds: int) -> Callable:
-    """`trainer.updates` over a leading seed axis of the runner state and the metrics."""
+    """`trainer.updates` over a leading seed axis of the runner state and the metrics (the
+    seeds learning in turn with `PPOConfig.learn_seeds_in_turn`)."""
+    if num_seeds > 1 and trainer.config.learn_seeds_in_turn:
+        def in_turn(runner: RunnerState, num_updates: int, active: jax.Array | None = None) -> Any:
+            runner, metrics = trainer.updates(runner, num_updates, active,
+                                              step=trainer.update_seeds_in_turn)
+            return runner, jax.tree.map(lambda x: jnp.swapaxes(x, 0, 1), metrics)  # [seeds, num]
+
+        return in_turn
     return over_seeds(trainer.updates, num_seeds, in_axes=(0, None, None))
 
 

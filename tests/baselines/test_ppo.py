@@ -1,5 +1,6 @@
 """The shared PPO trainer: GAE and the losses against hand/numpy computations, resume, sharding."""
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -185,6 +186,21 @@ def test_two_seeds_with_an_idle_tail_and_kl_stops_run_only_the_active_epochs(tmp
     assert epochs.min() < KL_FIRES.update_epochs  # the KL stop fired
     adam_steps = np.asarray(runner.opt_state[1][0].count)  # one per minibatch step, per seed
     assert adam_steps.sum() == KL_FIRES.num_minibatches * 2 * epochs.sum()  # idle updates took none
+
+
+def test_seeds_learning_in_turn_match_seeds_learning_side_by_side(tmp_path):
+    # chunks of 3 over 5 updates (an idle tail); the KL stop fires at other epochs per seed
+    in_turn = make_train(dataclasses.replace(KL_FIRES, learn_seeds_in_turn=True), ChainMethod())
+    side_by_side = make_train(KL_FIRES, ChainMethod())
+    options = {"chunk_updates": 3, "num_seeds": 2, "log": lambda s: None}
+    a = runs.train_in_run_dir(in_turn, jax.random.key(11), tmp_path / "turn", **options)
+    b = runs.train_in_run_dir(side_by_side, jax.random.key(11), tmp_path / "vmap", **options)
+    rows = [runs.read_metrics(tmp_path / d) for d in ("turn", "vmap")]
+    assert [r["epochs"] for r in rows[0]] == [r["epochs"] for r in rows[1]]
+    assert len({r["epochs"] for r in rows[0]}) > 1 and list(a.update) == [5, 5]
+    for x, y in zip(jax.tree.leaves(a.params), jax.tree.leaves(b.params), strict=True):
+        np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(jax.random.key_data(a.key), jax.random.key_data(b.key))
 
 
 def test_one_seed_unbatched_matches_the_vmapped_trainer(tmp_path):

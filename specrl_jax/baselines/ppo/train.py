@@ -51,6 +51,9 @@ class PPOConfig:
     target_cost: float = -0.05
     multiplier_min: float = 0.01
     multiplier_max: float = 5.0
+    # seeds side by side: learn one seed after the other, each stopping at its own `target_kl`
+    # (under `vmap` every seed runs the epochs of the last to stop); the same updates
+    learn_seeds_in_turn: bool = False
 
     def __post_init__(self) -> None:
         if self.loss not in losses.LOSSES:
@@ -230,9 +233,23 @@ class Trainer:
         """One update: `collect`, then `learn`, then the task distribution's next state."""
         key, key_collect, key_epochs = jax.random.split(runner.key, 3)
         env_state, obs, traj = self.collect(runner, key_collect)
-        params, opt_state, loss_metrics, epochs = self.learn(
-            runner.params, runner.opt_state, traj, obs, key_epochs
-        )
+        learned = self.learn(runner.params, runner.opt_state, traj, obs, key_epochs)
+        return self._advance(runner, key, env_state, obs, traj, *learned)
+
+    def update_seeds_in_turn(self, runners: RunnerState) -> tuple[RunnerState, dict[str, jax.Array]]:
+        """`update` over a leading seed axis of `runners`: the seeds collect side by side, then
+        learn one after the other (`lax.map`), each running only its own epochs."""
+        keys = jax.vmap(lambda k: jax.random.split(k, 3))(runners.key)
+        env_state, obs, traj = jax.vmap(self.collect)(runners, keys[:, 1])
+        learned = jax.lax.map(lambda args: self.learn(*args),
+                              (runners.params, runners.opt_state, traj, obs, keys[:, 2]))
+        return jax.vmap(self._advance)(runners, keys[:, 0], env_state, obs, traj, *learned)
+
+    def _advance(self, runner: RunnerState, key: jax.Array, env_state: Any, obs: Any,
+                 traj: rollout.Transition, params: Any, opt_state: Any,
+                 loss_metrics: dict[str, jax.Array], epochs: jax.Array
+                 ) -> tuple[RunnerState, dict[str, jax.Array]]:
+        """The runner after an update's rollout and learning, and the update's metrics."""
         task_params = self.method.update_task_params(runner.task_params, traj.stats)
         stats = {k: jnp.sum(v) for k, v in traj.stats.items() if not k.startswith("_")}
         runner = RunnerState(params, opt_state, env_state, obs, task_params, key, runner.update + 1)
@@ -282,18 +299,21 @@ class Trainer:
         return params, opt_state, metrics, epochs
 
     def updates(self, runner: RunnerState, num_updates: int,
-                active: jax.Array | None = None) -> tuple[RunnerState, dict[str, jax.Array]]:
+                active: jax.Array | None = None, step: Callable | None = None
+                ) -> tuple[RunnerState, dict[str, jax.Array]]:
         """`num_updates` updates in one scan; metrics stacked `[num_updates]`.
 
         `active` (int32 scalar, may be traced; keep it unbatched under `vmap`) runs only the first
         `active` updates and passes the state through the rest (their metrics are zeros), so one
-        compiled chunk also serves a shorter last chunk.
+        compiled chunk also serves a shorter last chunk. `step`: the update (default `update`;
+        `update_seeds_in_turn` for a runner with a seed axis).
         """
+        step = step or self.update
         if active is None:
-            return jax.lax.scan(lambda r, _: self.update(r), runner, None, length=num_updates)
+            return jax.lax.scan(lambda r, _: step(r), runner, None, length=num_updates)
 
         def body(r, i):
-            update, shapes = trace_once(self.update, r)  # traced once, not again for the shapes
+            update, shapes = trace_once(step, r)  # traced once, not again for the shapes
             skipped = zeros_like_shapes(shapes[1])
             return jax.lax.cond(i < active, update, lambda r: (r, skipped), r)
 
