@@ -457,7 +457,7 @@ def run_command(args: argparse.Namespace) -> int:
     if evaluation is None:
         results = experiment.evaluate("genz", "LetterLTL0-v0", params, suites, episodes)
     else:
-        results = evaluation.result()(jax.device_get(params))
+        results = evaluation.result()(params)  # placed as its program takes them
     path = report.write_json(out / "results.json", results, {"train": summary, "episodes": episodes})
     print(report.markdown_tables(results))
     print(f"wrote {path}" + ("" if args.params else f"; the run directory is {out}/"))
