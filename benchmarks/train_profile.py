@@ -150,12 +150,14 @@ def build(args: argparse.Namespace, num_devices: int) -> tuple[Any, Any, dict[st
     over the first `num_devices` local devices, `--num-envs` (or the family's) on each."""
     platform = jax.devices()[0].platform
     world_family = experiment.family(args.env)
-    overrides = experiment.default_overrides(platform, None, world_family, args.method)
+    images = experiment.observes_images(args.env, dict(args.env_option))
+    overrides = experiment.default_overrides(platform, None, world_family, args.method, images)
     num_envs = (args.num_envs or overrides["num_envs"]) * num_devices
     overrides.update({k: v for k, v in (
         ("num_envs", num_envs), ("num_steps", args.num_steps),
         ("num_minibatches", args.minibatches), ("update_epochs", args.epochs)) if v is not None})
-    overrides["learn_seeds_in_turn"] = args.learn_in_turn
+    if args.learn_in_turn is not None:
+        overrides["learn_seeds_in_turn"] = args.learn_in_turn == "on"
     map_bank = (families.get(world_family).map_bank_size(platform) if args.map_bank is None
                 else args.map_bank)
     key_bank, key_train = jax.random.split(jax.random.key(args.seed))
@@ -384,7 +386,7 @@ def profile(args: argparse.Namespace, num_devices: int = 1) -> dict[str, Any]:
         "grad_steps_per_update": grad_steps, "grad_steps_per_s": grad_steps / per_update["update"],
         "compile_s": {part: round(s, 2) for part, s in compile_s.items()},
         "parallel_compile": args.parallel_compile,
-        "learn_in_turn": args.learn_in_turn,
+        "learn_in_turn": trainer.config.learn_seeds_in_turn,
         "compilation_cache": jax.config.jax_compilation_cache_dir,
         "seconds_per_repeat": seconds, "host_per_chunk": host,
         "host_syncs_per_update_min": host_syncs(programs, cfg.num_steps, full_epochs),
@@ -462,9 +464,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                              "kind; 0: exact resets)")
     parser.add_argument("--env-option", type=_option, action="append", default=[],
                         metavar="KEY=VALUE", help="an override of the world, e.g. image_size=64")
-    parser.add_argument("--learn-in-turn", action="store_true",
+    parser.add_argument("--learn-in-turn", choices=("on", "off"), default=None,
                         help="seeds learn one after the other, each to its own KL stop "
-                             "(PPOConfig.learn_seeds_in_turn)")
+                             "(PPOConfig.learn_seeds_in_turn; default: the training's, on for "
+                             "image worlds on an accelerator)")
     parser.add_argument("--parallel-compile", action="store_true",
                         help="compile the update and full programs side by side (each one's "
                              "compile time then shares the CPU with the other's)")

@@ -374,7 +374,8 @@ def train_command(args: argparse.Namespace) -> int:
     load_world_modules(args.env, args.own_process)
     world_family = experiment.family(args.env)
     total = args.total_steps or families.default_total_steps(platform)
-    overrides = experiment.default_overrides(platform, total, world_family, args.method)
+    images = experiment.observes_images(args.env, dict(args.env_option))
+    overrides = experiment.default_overrides(platform, total, world_family, args.method, images)
     overrides.update({k: v for k, v in (("num_envs", args.num_envs), ("num_steps", args.num_steps))
                       if v is not None})
     out = Path(args.out or f"runs/{args.method}")
@@ -430,15 +431,16 @@ def run_command(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     suites = ("letter/finite/ind", "letter/finite/ood")
-    evaluation = None
+    evaluation: list[Future] = []
     if args.params:  # a file of `--seeds` runs (default 1), e.g. the committed GPU-trained agent
         params = experiment.load_params("genz", "LetterLTL0-v0", args.params, args.seeds or 1)
         summary = {"loaded_from": args.params}
     else:
-        if gpu:  # the evaluator compiles on the host while the device trains
+        def compile_evaluator() -> None:  # on the host while the device trains
             shapes = experiment.param_shapes("genz", "LetterLTL0-v0", seeds)
-            evaluation = in_background(
-                experiment.prepare_evaluation, "genz", "LetterLTL0-v0", shapes, suites, episodes)
+            evaluation.append(in_background(
+                experiment.prepare_evaluation, "genz", "LetterLTL0-v0", shapes, suites, episodes))
+
         overrides = experiment.default_overrides("gpu" if gpu else "cpu", total, "letter", "genz")
         if not gpu:  # a short budget: fewer epochs per update keeps it to minutes on two cores
             overrides.update(num_envs=32, num_steps=64, update_epochs=10)
@@ -450,14 +452,15 @@ def run_command(args: argparse.Namespace) -> int:
               flush=True)
         map_bank = families.LETTER.map_bank_size("gpu" if gpu else "cpu")
         params, summary = experiment.train("genz", "LetterLTL0-v0", out, overrides, seeds,
-                                           map_bank=map_bank, restart=args.restart)
+                                           map_bank=map_bank, restart=args.restart,
+                                           on_compiled=compile_evaluator if gpu else None)
         print(f"trained GenZ-LTL: {seeds} x {summary['env_steps_per_seed']:,} steps at "
               f"{summary['env_steps_per_s']:,.0f} env-steps/s")
     print(f"evaluating on {', '.join(suites)}: {episodes} episodes per spec and seed", flush=True)
-    if evaluation is None:
-        results = experiment.evaluate("genz", "LetterLTL0-v0", params, suites, episodes)
+    if evaluation:
+        results = evaluation[0].result()(params)  # placed as its program takes them
     else:
-        results = evaluation.result()(params)  # placed as its program takes them
+        results = experiment.evaluate("genz", "LetterLTL0-v0", params, suites, episodes)
     path = report.write_json(out / "results.json", results, {"train": summary, "episodes": episodes})
     print(report.markdown_tables(results))
     print(f"wrote {path}" + ("" if args.params else f"; the run directory is {out}/"))

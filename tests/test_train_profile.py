@@ -82,7 +82,7 @@ def test_train_profile_runs_tiny_and_its_parts_add_up(tmp_path):
 
 def test_train_profile_times_seeds_learning_in_turn(tmp_path):
     out = tmp_path / "rows.json"
-    args = [*ARGS[:ARGS.index("--devices")], "--seeds", "2", "--learn-in-turn", "--out", str(out)]
+    args = [*ARGS[:ARGS.index("--devices")], "--seeds", "2", "--learn-in-turn", "on", "--out", str(out)]
     env = dict(os.environ, JAX_PLATFORMS=os.environ.get("JAX_PLATFORMS", "cpu"))
     done = subprocess.run([sys.executable, str(SCRIPT), *args], check=False, cwd=tmp_path,
                           env=env, capture_output=True, text=True, timeout=600)

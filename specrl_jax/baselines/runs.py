@@ -138,14 +138,16 @@ def init_seeds(trainer: Trainer, key: jax.Array, num_seeds: int,
 
 def train_chunks(trainer: Trainer, runner: RunnerState, num_seeds: int, chunk_updates: int,
                  total: int, first_chunk: int | None = None,
-                 log: Callable[[str], None] | None = None, program_key: str | None = None
+                 log: Callable[[str], None] | None = None, program_key: str | None = None,
+                 on_compiled: Callable[[], None] | None = None
                  ) -> Iterator[tuple[RunnerState, dict[str, Any], int, int]]:
     """The one training driver: from `runner`'s update (seed axis first) to `total`, in chunks of
     at most `chunk_updates` updates (the first of at most `first_chunk`, e.g. 1 to report the
     update that included compilation at once). Yields `(runner, metrics [seeds, chunk_updates]
     on the host, updates in this chunk, updates done)` after each chunk, so callers log,
     checkpoint or stop; `log` hears what compiles and how long it took; `program_key` names the
-    traced program on disk (`compile_logged`)."""
+    traced program on disk (`compile_logged`); `on_compiled()` runs once the step has compiled,
+    before it runs (work for the host while the device trains)."""
     done = int(runner.update[0])
     if done >= total:
         return
@@ -153,6 +155,8 @@ def train_chunks(trainer: Trainer, runner: RunnerState, num_seeds: int, chunk_up
     updates = compile_logged(seed_batched(trainer, num_seeds), (runner, chunk_updates, jnp.int32(1)),
                              "the training step", log, program_key, static_argnums=1,
                              donate_argnums=0)
+    if on_compiled is not None:
+        on_compiled()
     size = min(first_chunk or chunk_updates, chunk_updates)
     while done < total:
         n = min(size, total - done)
@@ -176,6 +180,7 @@ def train_in_run_dir(
     restart: bool = False,
     first_chunk: int | None = None,
     program_key: str | None = None,
+    on_compiled: Callable[[], None] | None = None,
 ) -> RunnerState:
     """Train `num_seeds` runs of `trainer` side by side (`vmap`) in chunks of `chunk_updates`,
     resuming from `run_dir` when it holds a checkpoint.
@@ -184,7 +189,8 @@ def train_in_run_dir(
     `max_wall_s` (this session's seconds, checked after each chunk) stop early, resumable;
     `first_chunk` bounds the session's first chunk (1: the update that includes compilation is
     reported as soon as it ends); `program_key` names the traced programs on disk, so that a
-    second identical run does not trace them (`compile_logged`). Ctrl-C raises
+    second identical run does not trace them (`compile_logged`); `on_compiled()` runs once the
+    training step has compiled, before it runs (`train_chunks`). Ctrl-C raises
     `TrainingInterrupted` naming the checkpointed update. Rows'
     `wall_s` is training time summed over sessions (a resumed run continues the clock of the
     checkpoint's update), so rates and times to a level stay on one clock. A run directory is
@@ -220,7 +226,7 @@ def train_in_run_dir(
     try:
         with open(run_dir / "metrics.jsonl", "a") if writer else contextlib.nullcontext() as out:
             chunks = train_chunks(trainer, runner, num_seeds, chunk_updates, total, first_chunk,
-                                  log, program_key)
+                                  log, program_key, on_compiled)
             rate_from = None  # after the first chunk: rates since it ended, without compilation
             for runner, metrics, n, done in chunks:
                 elapsed = time.perf_counter() - start_wall

@@ -62,19 +62,30 @@ def suites_for(env: str | Any) -> tuple[str, ...]:
 
 
 def default_overrides(device_kind: str, total_steps: int | None = None,
-                      world_family: str = "letter", method: str | None = None) -> dict[str, Any]:
+                      world_family: str = "letter", method: str | None = None,
+                      images: bool = False) -> dict[str, Any]:
     """The training shape of a world family on a device kind (`families.WorldFamily.rollout`):
     LetterWorld the reference's 16 x 128 on a CPU, 256 x 128 on an accelerator; ZoneEnv / Arm
     16 x 128 on a CPU, 512 x 128 (the arm 4,096 x 16) = 65,536 samples per update in minibatches
     of 2,048 on an accelerator (the reference's update size, 16 x 4096). The per-sample settings are unchanged
     (docs/fidelity.md), but for `method`'s own accelerator settings
-    (`MethodSpec.accelerator_ppo`: GenZ-LTL's epochs capped at 10)."""
+    (`MethodSpec.accelerator_ppo`: GenZ-LTL's epochs capped at 10). A world that `images`
+    (`observes_images`) learns its seeds in turn on an accelerator (`PPOConfig.learn_seeds_in_turn`:
+    the same updates; its gradient steps fill the device alone, and each seed stops at its own KL)."""
     shape: dict[str, Any] = families.get(world_family).rollout_shape(device_kind)
     if method is not None and device_kind != "cpu":
         shape.update(get_method(method).accelerator_ppo)
+    if images and device_kind != "cpu":
+        shape["learn_seeds_in_turn"] = True
     if total_steps is not None:
         shape["total_timesteps"] = int(total_steps)
     return shape
+
+
+def observes_images(env_id: str, env_options: dict[str, Any] | None = None) -> bool:
+    """Whether `make(env_id, **env_options)` observes camera frames (the `Vision` IDs)."""
+    world = make(env_id, **(env_options or {}))[0]
+    return bool(getattr(getattr(world, "config", None), "vision", False))
 
 
 #: method options naming a file (a world family's name instead picks the package's own)
@@ -187,14 +198,15 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
           seed: int = 0, map_bank: int | None = 65536, chunk_updates: int = 10,
           log: Callable[[str], None] = print, max_wall_s: float | None = None,
           restart: bool = False, devices: Sequence[Any] | None = None,
-          env_options: dict[str, Any] | None = None, method_options: dict[str, Any] | None = None
-          ) -> tuple[Any, dict[str, Any]]:
+          env_options: dict[str, Any] | None = None, method_options: dict[str, Any] | None = None,
+          on_compiled: Callable[[], None] | None = None) -> tuple[Any, dict[str, Any]]:
     """Train `num_seeds` runs; returns `(params with a leading seed axis, training summary)`.
     `env_options` are `make`'s overrides of the world (e.g. `{"image_size": 64}`),
     `method_options` the method's `make_method` options (e.g. `{"sampler": "curriculum"}`).
     `restart` discards a run directory's earlier run (else it is resumed if its settings match).
     `max_wall_s` stops training at the first checkpoint after that many seconds of this call,
-    set-up included (resumable).
+    set-up included (resumable). `on_compiled()` runs once the training step has compiled,
+    before it runs: host work that would slow the compilation down (another compilation).
     The env batch is sharded over `devices` (default: every device, of every process in a job
     of several; `num_envs` must divide by their count), parameters replicated; the result does
     not depend on the count beyond floating-point reduction order. In a job of several processes
@@ -239,7 +251,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     runner = runs.train_in_run_dir(
         trainer, key_train, run_dir, chunk_updates, num_seeds, extra_config=extra_config,
         summarise=spec.summarise, log=log, max_wall_s=budget, restart=restart, first_chunk=1,
-        program_key=programs,
+        program_key=programs, on_compiled=on_compiled,
     )
     wall = time.perf_counter() - start
     rows = runs.read_metrics(run_dir)

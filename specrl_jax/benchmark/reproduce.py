@@ -63,7 +63,8 @@ def default_train(cell: Cell, run_dir: Path, log: Log, max_wall_s: float | None 
 
     platform = jax.devices()[0].platform
     world_family = experiment.family(cell.env_id)
-    overrides = experiment.default_overrides(platform, cell.total_steps, world_family, cell.method)
+    images = experiment.observes_images(cell.env_id, dict(cell.env_options))
+    overrides = experiment.default_overrides(platform, cell.total_steps, world_family, cell.method, images)
     overrides.update(dict(cell.ppo))
     map_bank = families.get(world_family).map_bank_size(platform)
     return experiment.train(cell.method, cell.env_id, run_dir, overrides, cell.seeds, log=log,

@@ -178,8 +178,14 @@ def test_partly_active_chunks_continue_like_a_full_chunk():
 def test_two_seeds_with_an_idle_tail_and_kl_stops_run_only_the_active_epochs(tmp_path):
     # chunks of 3 over 5 updates: the second chunk runs 2 updates and idles the third
     trainer = make_train(KL_FIRES, ChainMethod())
-    runner = runs.train_in_run_dir(trainer, jax.random.key(11), tmp_path, chunk_updates=3, num_seeds=2,
-                                   log=lambda s: None)
+    heard = []  # on_compiled runs once, after the step compiled and before any update ran
+    runner = runs.train_in_run_dir(
+        trainer, jax.random.key(11), tmp_path, chunk_updates=3, num_seeds=2, log=heard.append,
+        on_compiled=lambda: heard.append(f"on_compiled, rows {len(runs.read_metrics(tmp_path))}"))
+    assert heard.count("on_compiled, rows 0") == 1 and not any(
+        h.startswith("on_compiled, rows") for h in heard if h != "on_compiled, rows 0")
+    at = heard.index("on_compiled, rows 0")
+    assert "compiled the training step" in heard[at - 1] and heard[at + 1].startswith("update 3/5")
     rows = runs.read_metrics(tmp_path)
     assert [r["update"] for r in rows] == [1, 2, 3, 4, 5] and list(runner.update) == [5, 5]
     epochs = np.array([r["epochs"] for r in rows])  # mean over the 2 seeds

@@ -115,3 +115,12 @@ def test_clear_errors_for_unknown_methods_and_envs():
         get_method("ppo")
     with pytest.raises(ValueError, match="cannot train on env 'Nope-v0'; single-agent IDs: Ant"):
         experiment.family("Nope-v0")
+
+
+def test_image_worlds_learn_their_seeds_in_turn_on_an_accelerator():
+    assert experiment.observes_images("PointLTL0Vision-v0", {"image_size": 32})
+    assert not experiment.observes_images("PointLTL0-v0")
+    assert not experiment.observes_images("LetterLTL0-v0")
+    assert experiment.default_overrides("gpu", None, "zone", "genz", images=True)["learn_seeds_in_turn"]
+    for device, images in (("cpu", True), ("gpu", False)):
+        assert "learn_seeds_in_turn" not in experiment.default_overrides(device, None, "zone", "genz", images)
