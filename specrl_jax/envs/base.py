@@ -30,14 +30,41 @@ same type and config, so a second env of one config compiles nothing.
 from __future__ import annotations
 
 import abc
+import contextlib
+import contextvars
+from collections.abc import Iterator
 from typing import Any
 
 import jax
 import jax.numpy as jnp
+from jax.experimental import checkify
 
 from specrl_jax.envs import compiled
 
 Obs = dict[str, jax.Array]
+
+_CHECKING = contextvars.ContextVar("specrl_jax_checking", default=False)
+
+
+@contextlib.contextmanager
+def checking() -> Iterator[None]:
+    """Traces inside it are checked mode's (`envs.checked`): `sampler_check` becomes a user check
+    for `jax.experimental.checkify`."""
+    token = _CHECKING.set(True)
+    try:
+        yield
+    finally:
+        _CHECKING.reset(token)
+
+
+def sampler_check(ok: jax.Array, message: str) -> None:
+    """A layout sampler's failure (`ok` False: it gave up and fell back) raised as `message` in
+    checked mode, and nothing elsewhere. (A `checkify.debug_check` would trace a process-wide
+    error counter into every program that resets a world, so that one program traced after
+    another check would miss the persistent compilation cache.)"""
+    if _CHECKING.get():
+        checkify.check(ok, message)
+
 Info = dict[str, Any]
 StepOut = tuple[Obs, Any, jax.Array, jax.Array, jax.Array, Info]
 

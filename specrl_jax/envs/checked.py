@@ -19,7 +19,7 @@ import jax
 import numpy as np
 from jax.experimental import checkify
 
-from specrl_jax.envs.base import Obs, StepOut, check_action_container
+from specrl_jax.envs.base import Obs, StepOut, check_action_container, checking
 from specrl_jax.envs.wrappers import BatchedEnv
 
 
@@ -50,7 +50,8 @@ class Checked:
         params = self.env.default_params if params is None else params
         if self._batched:
             return self._reset(key, params)
-        error, out = self._reset(key, params)
+        with checking():  # traced here, the layout samplers' checks (`base.sampler_check`)
+            error, out = self._reset(key, params)
         error.throw()
         return out
 

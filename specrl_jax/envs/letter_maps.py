@@ -18,7 +18,7 @@ Rejection needs valid sets to be common enough: `valid_rate` estimates, by a bou
 on the host, the fraction of uniform k-subsets that are valid, and `LetterConfig` rejects a
 configuration below `MIN_VALID_RATE`. The loop is bounded by `MapSpec.round_limit` rounds,
 after which (probability below e^-40 at the minimum rate) it returns `MapSpec.fallback`, a fixed
-valid set found by the estimate, and `checkify.debug_check` fails (raised in checked mode).
+valid set found by the estimate, and `base.sampler_check` fails (raised in checked mode).
 
 A map bank (`sample_bank`) holds exactly sampled sets as ordinal grids; `letters_from_bank`
 draws one with a random symmetry of the torus that fixes (0, 0) and a fresh uniform labelling:
@@ -34,7 +34,8 @@ from dataclasses import dataclass
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.experimental import checkify
+
+from specrl_jax.envs.base import sampler_check
 
 MAX_GRID_SIZE = 32  # one uint32 word per board row
 #: least fraction of uniform placements that must be valid; at this rate an exact reset takes
@@ -211,7 +212,7 @@ def sample_board(key: jax.Array, spec: MapSpec) -> jax.Array:
 
     init = (key, jnp.asarray(0), jnp.asarray(False), jnp.zeros((spec.grid_size,), jnp.uint32))
     _, _, found, board = jax.lax.while_loop(searching, round_, init)
-    checkify.debug_check(
+    sampler_check(
         found, f"no valid {spec.grid_size}x{spec.grid_size} map with {spec.num_cells} letter "
         f"cells in {spec.round_limit} sampling rounds; valid maps are too rare for this config"
     )

@@ -8,6 +8,7 @@ from jax.experimental import checkify
 
 import specrl_jax
 from specrl_jax.envs import batch, checked, letter_maps
+from specrl_jax.envs.base import checking
 from specrl_jax.envs.letter import LetterConfig, LetterWorld, make_letter_world
 
 # ------------------------------------------------------------------ letter densities and loops
@@ -40,11 +41,27 @@ def test_map_sampler_gives_up_after_its_round_limit():
     spec = letter_maps.MapSpec(3, (0,) * 8, fallback=fallback, max_rounds=3)
     board = jax.jit(letter_maps.sample_board, static_argnums=1)(jax.random.key(0), spec)
     assert np.asarray(board).tolist() == list(fallback)
-    error, _ = checkify.checkify(letter_maps.sample_board, errors=checkify.user_checks)(
-        jax.random.key(0), spec
-    )
+    with checking():  # what `checked(env)` traces under
+        error, _ = checkify.checkify(letter_maps.sample_board, errors=checkify.user_checks)(
+            jax.random.key(0), spec
+        )
     with pytest.raises(checkify.JaxRuntimeError, match="no valid 3x3 map with 8 letter cells"):
         error.throw()
+
+
+@pytest.mark.parametrize("env_id", ["LetterLTL0-v0", "PointLTL0-v0"])
+def test_a_reset_lowers_to_one_program_whatever_the_process_traced_before(env_id):
+    # the persistent compilation cache keys programs by their text: a check's process-wide
+    # error code in it would make a program traced after others a different program
+    env, params = specrl_jax.make(env_id)
+    key = jax.random.key(0)
+
+    def lowered() -> str:
+        return jax.jit(lambda k, p: env.reset(k, p)).lower(key, params).as_text()
+
+    first = lowered()
+    checkify.checkify(lambda x: checkify.check(x > 0, "positive"))(1.0)  # takes an error code
+    assert lowered() == first
 
 
 # ------------------------------------------------------------------ invalid actions

@@ -10,7 +10,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
-from jax.experimental import checkify
 
 from specrl_jax.envs import spaces
 from specrl_jax.envs.arm import layout as layout_lib
@@ -19,7 +18,7 @@ from specrl_jax.envs.arm import sensors
 from specrl_jax.envs.arm.config import ArmConfig
 from specrl_jax.envs.arm.ik import EndEffectorIK
 from specrl_jax.envs.arm.physics import Physics, PhysicsState
-from specrl_jax.envs.base import Env, Info, Obs
+from specrl_jax.envs.base import Env, Info, Obs, sampler_check
 
 ACTION_SCALE = 0.05  # rad of joint target per unit action
 
@@ -127,7 +126,7 @@ class ArmEnv(Env):
         if params.map_bank is None:
             centres, ok = layout_lib.sample_centres(key, self.config)
             rounds = self.config.max_rounds
-            checkify.debug_check(
+            sampler_check(
                 ok, f"the arm's layout sampler found no valid layout in max_rounds={rounds} rounds"
             )
         else:

@@ -19,8 +19,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.experimental import checkify
 
+from specrl_jax.envs.base import sampler_check
 from specrl_jax.envs.zone.config import ZoneConfig
 
 MAX_PARALLEL = 16
@@ -91,7 +91,7 @@ def sample_positions(
 
     init = (jnp.array(0), jnp.zeros((keepout.shape[0], 2)), jnp.array(False), key)
     _, xy, ok, _ = jax.lax.while_loop(cond, body, init)
-    checkify.debug_check(
+    sampler_check(
         ok, f"no layout of the agent and {config.num_zones} zones in max_restarts="
         f"{config.max_restarts} attempts; use fewer or smaller zones"
     )
