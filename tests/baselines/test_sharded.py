@@ -120,7 +120,9 @@ shape = world.action_space.shape
 act = lambda p, obs, state, key: jax.random.uniform(key, shape, minval=-1.0, maxval=1.0)
 car_eval = make_evaluator(act, car_task, car_params, 2, horizon=3).lower(None, seeds).compile()
 out["warp_eval_gathers"] = car_eval.as_text().count("all-gather")
-out["warp_eval_shape"] = list(car_eval(None, seeds).success.shape)
+# awaited: a Warp program still running when the process exits deadlocks XLA:CPU's shut-down
+car_result = jax.block_until_ready(car_eval(None, seeds))
+out["warp_eval_shape"] = list(car_result.success.shape)
 print("RESULT " + json.dumps(out))
 """
 
