@@ -82,9 +82,9 @@ def default_overrides(device_kind: str, total_steps: int | None = None,
     return shape
 
 
-def observes_images(env_id: str, env_options: dict[str, Any] | None = None) -> bool:
-    """Whether `make(env_id, **env_options)` observes camera frames (the `Vision` IDs)."""
-    world = make(env_id, **(env_options or {}))[0]
+def observes_images(env: str | Any, env_options: dict[str, Any] | None = None) -> bool:
+    """Whether a world (or `make(env_id, **env_options)`) observes camera frames (the `Vision` IDs)."""
+    world = make(env, **(env_options or {}))[0] if isinstance(env, str) else env
     return bool(getattr(getattr(world, "config", None), "vision", False))
 
 
@@ -185,10 +185,9 @@ def trained_steps(config: PPOConfig) -> int:
 def warn_slow_camera(world: Any, platform: str) -> None:
     """A warning when a camera world renders large frames on a CPU (each step renders one per
     env: training takes hours)."""
-    config = getattr(world, "config", None)
-    size = getattr(config, "image_size", None)
+    size = getattr(getattr(world, "config", None), "image_size", None)
     size = (size, size) if isinstance(size, int) else size
-    if platform == "cpu" and getattr(config, "vision", False) and size and size[0] * size[1] > 128 * 128:
+    if platform == "cpu" and observes_images(world) and size and size[0] * size[1] > 128 * 128:
         warnings.warn(f"training a camera world at {size[0]} x {size[1]} pixels on a CPU renders "
                       "a frame per env and step: expect hours; pass --env-option image_size=64 "
                       "(make(..., image_size=64)) for a CPU-sized camera", stacklevel=2)

@@ -71,7 +71,9 @@ class PatchConv(nn.Module):
     input for the backward pass; that pass rebuilds the patch matrix and is the patch matmul's.
     Under `vmap` on a GPU the library's forward is the faster (the paper's image CNN, 5 seeds x
     2,048 images of 64 x 64 on an H200: 6.0 ms against 13.9 ms; `benchmarks/lab/image_conv.py`),
-    and a rollout or an evaluation runs the forward pass alone; on XLA:CPU it is the slower.
+    and a rollout or an evaluation runs the forward pass alone; on XLA:CPU it is the slower. In
+    GenZ-LTL's image training loop the faster rollout and the slower update epochs cancel
+    (results.md, Training speed), so it is off by default.
     """
 
     features: int
