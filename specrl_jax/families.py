@@ -192,12 +192,12 @@ def encoder_name(family: str, alphabet: Any, per_symbol: bool) -> str | None:
     """The shipped formula encoder a world of `family` reads: the family's `formula_encoder`, or
     `<family>_overlap` for an encoder over alphabet symbols (`per_symbol`, RAD-Embeddings' DFAs)
     when the world's labels (`alphabet`, bool[A, P]) can hold several propositions at once. A
-    family that borrows another's encoder (the arm, Zone's) reads it as it is."""
-    name = get(family).formula_encoder if family in _FAMILIES else family
+    family that borrows another's encoder (the arm, Zone's) reads it where labels do not overlap
+    and has its own overlap encoder where they do (the grippers-and-arm alphabet)."""
     rows, props = len(alphabet), len(alphabet[0])
-    if name == family and per_symbol and props > 1 and rows > props + 1:
-        return f"{name}_overlap"
-    return name
+    if per_symbol and props > 1 and rows > props + 1:
+        return f"{family}_overlap"
+    return get(family).formula_encoder if family in _FAMILIES else family
 
 
 def register_family(record: WorldFamily) -> None:

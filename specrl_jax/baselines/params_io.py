@@ -86,7 +86,8 @@ def load_encoder_file(family_or_path: str | os.PathLike, shipped: Callable[[str]
     is_shipped = Path(name).suffix == "" and os.sep not in name
     path = shipped(name) if is_shipped else Path(family_or_path)
     if not path.exists():
-        how = ("--env ID` with ID a world whose labels overlap, e.g. PointLTL1-v0"
+        how = (f"--env ID` with ID a world of the {name.removesuffix('_overlap')} family whose "
+               "labels overlap (PointLTL1-v0 for zone, PandaLTLReach1Joints-v0 for arm)"
                if name.endswith("_overlap")
                else f"--family {name}`" if is_shipped else "--family FAMILY --out PATH`")
         raise ValueError(f"no pretrained {title} encoder at {path}; make one with "

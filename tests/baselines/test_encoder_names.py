@@ -22,9 +22,10 @@ def test_a_per_symbol_encoder_has_its_own_name_where_labels_overlap():
     # an encoder of formulas over propositions reads any label set of the family
     assert families.encoder_name("zone", _every_subset(4), per_symbol=False) == "zone"
     assert families.encoder_name("letter", _none_or_one(12), per_symbol=True) == "letter"
-    # the arm borrows Zone's encoder: grippers+arm's every-subset alphabet has none (its own test)
+    # the arm borrows Zone's encoder for grippers only; grippers+arm's every subset is its own
     assert families.encoder_name("arm", _none_or_one(4), per_symbol=True) == "zone"
-    assert families.encoder_name("arm", _every_subset(8), per_symbol=True) == "zone"
+    assert families.encoder_name("arm", _every_subset(8), per_symbol=True) == "arm_overlap"
+    assert families.encoder_name("arm", _every_subset(8), per_symbol=False) == "zone"
     # one proposition: "nothing" and "it" are every subset and none-or-one alike
     assert families.encoder_name("zone", _every_subset(1), per_symbol=True) == "zone"
 
@@ -41,8 +42,8 @@ def test_moving_zones_read_the_overlap_encoder_and_the_plain_one_is_refused():
 
 
 def test_a_missing_shipped_encoder_says_how_to_make_it():
-    with pytest.raises(ValueError, match=r"pretrain --method rad --env ID` with ID a world whose "
-                                         r"labels overlap"):
+    with pytest.raises(ValueError, match=r"pretrain --method rad --env ID` with ID a world of the "
+                                         r"letter family whose labels overlap"):
         rad_pretrain.load_encoder("letter_overlap", 4096)
     with pytest.raises(ValueError, match=r"pretrain --method rad --family FAMILY --out PATH`"):
         rad_pretrain.load_encoder("/nonexistent/encoder.msgpack", 5)

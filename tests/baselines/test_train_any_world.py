@@ -10,6 +10,7 @@ import specrl_jax
 from specrl_jax import automata, families
 from specrl_jax.baselines import deepltl, gcrl, genz, ltl2action, rad
 from specrl_jax.baselines.ppo import make_train
+from specrl_jax.baselines.rad import pretrain as rad_pretrain
 from specrl_jax.baselines.spec import get_method
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.benchmark import experiment
@@ -77,12 +78,15 @@ def test_the_other_methods_trace_an_update_on_the_mjx_worlds(env_id, module, opt
     assert metrics["policy_loss"].shape == () and metrics["value_loss"].shape == ()
 
 
-def test_rad_on_the_grippers_arm_alphabet_names_the_missing_encoder():
+def test_rad_on_the_grippers_arm_alphabet_names_the_missing_encoder(monkeypatch, tmp_path):
     """The grippers-only arm reads the shipped Zone encoder (same alphabet); grippers+arm's 256
-    assignments have none, and the error says so instead of failing inside the network."""
+    assignments read the arm's own overlap encoder, and where it is missing the error says how to
+    make it instead of failing inside the network."""
+    monkeypatch.setattr(rad_pretrain, "encoder_path", lambda name: tmp_path / f"rad_{name}.msgpack")
     world, params = specrl_jax.make("PandaLTLReach1Joints-v0", table_contacts=False)
-    with pytest.raises(ValueError, match="reads 5 symbols; the alphabet has 256; RAD needs an "
-                                         "encoder pretrained on this alphabet"):
+    with pytest.raises(ValueError, match=r"rad_arm_overlap.msgpack; make one with `specrl-jax "
+                                         r"pretrain --method rad --env ID` with ID a world of the "
+                                         r"arm family .*PandaLTLReach1Joints-v0"):
         rad.make_method(world, params, "arm", bank_size=16)
 
 
