@@ -14,6 +14,7 @@ import json
 import os
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -136,25 +137,42 @@ def init_seeds(trainer: Trainer, key: jax.Array, num_seeds: int,
     return jax.jit(lambda *trees: jax.tree.map(lambda *xs: jnp.stack(xs), *trees))(*seeds)
 
 
+def runner_shapes(trainer: Trainer, key: jax.Array, num_seeds: int) -> RunnerState:
+    """The shapes and dtypes of `init_seeds(trainer, key, num_seeds)`, without computing it."""
+    one = jax.eval_shape(trainer.init, jax.random.split(key, num_seeds)[0])
+    return jax.tree.map(lambda x: jax.ShapeDtypeStruct((num_seeds, *x.shape), x.dtype), one)
+
+
+def compile_updates(trainer: Trainer, runner: RunnerState, num_seeds: int, chunk_updates: int,
+                    log: Callable[[str], None] | None = None, program_key: str | None = None
+                    ) -> Callable:
+    """The training step of `num_seeds` seeds side by side, `updates(runner, n)` running `n` of
+    `chunk_updates` updates, compiled for `runner` (arrays or `runner_shapes`). One compiled
+    chunk serves every chunk: a shorter chunk runs the same scan, partly idle."""
+    return compile_logged(seed_batched(trainer, num_seeds), (runner, chunk_updates, jnp.int32(1)),
+                          "the training step", log, program_key, static_argnums=1,
+                          donate_argnums=0)
+
+
 def train_chunks(trainer: Trainer, runner: RunnerState, num_seeds: int, chunk_updates: int,
                  total: int, first_chunk: int | None = None,
                  log: Callable[[str], None] | None = None, program_key: str | None = None,
-                 on_compiled: Callable[[], None] | None = None
+                 on_compiled: Callable[[], None] | None = None,
+                 compiled: Future | None = None
                  ) -> Iterator[tuple[RunnerState, dict[str, Any], int, int]]:
     """The one training driver: from `runner`'s update (seed axis first) to `total`, in chunks of
     at most `chunk_updates` updates (the first of at most `first_chunk`, e.g. 1 to report the
     update that included compilation at once). Yields `(runner, metrics [seeds, chunk_updates]
     on the host, updates in this chunk, updates done)` after each chunk, so callers log,
     checkpoint or stop; `log` hears what compiles and how long it took; `program_key` names the
-    traced program on disk (`compile_logged`); `on_compiled()` runs once the step has compiled,
-    before it runs (work for the host while the device trains)."""
+    traced program on disk (`compile_logged`); `compiled`, if given, holds `compile_updates`'
+    result for this runner's shapes (compiled while something else ran); `on_compiled()` runs
+    once the step has compiled, before it runs (work for the host while the device trains)."""
     done = int(runner.update[0])
     if done >= total:
         return
-    # One compiled chunk for every chunk: a shorter chunk runs the same scan, partly idle.
-    updates = compile_logged(seed_batched(trainer, num_seeds), (runner, chunk_updates, jnp.int32(1)),
-                             "the training step", log, program_key, static_argnums=1,
-                             donate_argnums=0)
+    updates = (compiled.result() if compiled is not None else
+               compile_updates(trainer, runner, num_seeds, chunk_updates, log, program_key))
     if on_compiled is not None:
         on_compiled()
     size = min(first_chunk or chunk_updates, chunk_updates)
@@ -181,6 +199,7 @@ def train_in_run_dir(
     first_chunk: int | None = None,
     program_key: str | None = None,
     on_compiled: Callable[[], None] | None = None,
+    compile_step_early: bool = True,
 ) -> RunnerState:
     """Train `num_seeds` runs of `trainer` side by side (`vmap`) in chunks of `chunk_updates`,
     resuming from `run_dir` when it holds a checkpoint.
@@ -190,7 +209,9 @@ def train_in_run_dir(
     `first_chunk` bounds the session's first chunk (1: the update that includes compilation is
     reported as soon as it ends); `program_key` names the traced programs on disk, so that a
     second identical run does not trace them (`compile_logged`); `on_compiled()` runs once the
-    training step has compiled, before it runs (`train_chunks`). Ctrl-C raises
+    training step has compiled, before it runs (`train_chunks`); `compile_step_early` compiles
+    the training step of a fresh run on one device while its initial state compiles and runs
+    (False: one program at a time, for programs whose lowering is not thread-safe). Ctrl-C raises
     `TrainingInterrupted` naming the checkpointed update. Rows'
     `wall_s` is training time summed over sessions (a resumed run continues the clock of the
     checkpoint's update), so rates and times to a level stay on one clock. A run directory is
@@ -210,6 +231,16 @@ def train_in_run_dir(
     log = hosts.writer_log(log)
     if writer:
         _start_run_dir(run_dir, config, restart)
+    total = cfg.num_updates if max_updates is None else min(cfg.num_updates, max_updates)
+    compiled = None
+    if (compile_step_early and (trainer.mesh is None or trainer.mesh.size == 1) and total > 0
+            and not (run_dir / CHECKPOINT).exists()):
+        # a fresh run on one device: the training step compiles while the initial state does
+        shapes = runner_shapes(trainer, key, num_seeds)
+        pool = ThreadPoolExecutor(1)
+        compiled = pool.submit(compile_updates, trainer, shapes, num_seeds, chunk_updates, log,
+                               program_key)
+        pool.shutdown(wait=False)
     runner = init_seeds(trainer, key, num_seeds, log, program_key)
     hosts.barrier("run directory ready")
     wall_before = 0.0
@@ -218,7 +249,6 @@ def train_in_run_dir(
         wall_before = _wall_at(run_dir, int(runner.update[0]))
         log(f"resumed at update {int(runner.update[0])} from {run_dir / CHECKPOINT} "
             f"after {wall_before:.1f}s of training")
-    total = cfg.num_updates if max_updates is None else min(cfg.num_updates, max_updates)
     start_wall = time.perf_counter()
     done_at_start = checkpointed = int(runner.update[0])
     if writer:
@@ -226,7 +256,7 @@ def train_in_run_dir(
     try:
         with open(run_dir / "metrics.jsonl", "a") if writer else contextlib.nullcontext() as out:
             chunks = train_chunks(trainer, runner, num_seeds, chunk_updates, total, first_chunk,
-                                  log, program_key, on_compiled)
+                                  log, program_key, on_compiled, compiled)
             rate_from = None  # after the first chunk: rates since it ended, without compilation
             for runner, metrics, n, done in chunks:
                 elapsed = time.perf_counter() - start_wall

@@ -251,6 +251,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         trainer, key_train, run_dir, chunk_updates, num_seeds, extra_config=extra_config,
         summarise=spec.summarise, log=log, max_wall_s=budget, restart=restart, first_chunk=1,
         program_key=programs, on_compiled=on_compiled,
+        compile_step_early=physics != "warp",  # Warp builds its kernels as a program lowers
     )
     wall = time.perf_counter() - start
     rows = runs.read_metrics(run_dir)

@@ -185,13 +185,27 @@ def test_two_seeds_with_an_idle_tail_and_kl_stops_run_only_the_active_epochs(tmp
     assert heard.count("on_compiled, rows 0") == 1 and not any(
         h.startswith("on_compiled, rows") for h in heard if h != "on_compiled, rows 0")
     at = heard.index("on_compiled, rows 0")
-    assert "compiled the training step" in heard[at - 1] and heard[at + 1].startswith("update 3/5")
+    compiled_step = next(i for i, h in enumerate(heard) if h.startswith("compiled the training step"))
+    assert compiled_step < at and heard[at + 1].startswith("update 3/5")
+    # a fresh run compiles the training step while the initial state compiles
+    init_done = next(i for i, h in enumerate(heard) if h.startswith("compiled the initial state"))
+    assert heard.index("compiling the training step ...") < init_done
     rows = runs.read_metrics(tmp_path)
     assert [r["update"] for r in rows] == [1, 2, 3, 4, 5] and list(runner.update) == [5, 5]
     epochs = np.array([r["epochs"] for r in rows])  # mean over the 2 seeds
     assert epochs.min() < KL_FIRES.update_epochs  # the KL stop fired
     adam_steps = np.asarray(runner.opt_state[1][0].count)  # one per minibatch step, per seed
     assert adam_steps.sum() == KL_FIRES.num_minibatches * 2 * epochs.sum()  # idle updates took none
+
+
+def test_a_run_whose_lowering_is_not_thread_safe_compiles_one_program_at_a_time(tmp_path):
+    heard = []
+    runs.train_in_run_dir(make_train(KL_FIRES, ChainMethod()), jax.random.key(11), tmp_path,
+                          chunk_updates=3, log=heard.append, compile_step_early=False)
+    compiles = [h.split(" in ")[0] for h in heard if h.startswith("compil")]
+    assert compiles == ["compiling the initial state (env reset, network init) ...",
+                        "compiled the initial state (env reset, network init)",
+                        "compiling the training step ...", "compiled the training step"]
 
 
 def test_seeds_learning_in_turn_match_seeds_learning_side_by_side(tmp_path):
