@@ -105,22 +105,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def in_background(fn: Callable[..., Any], *args: Any) -> Future:
-    """`fn(*args)` in a daemon thread (an interrupted command exits without waiting for it)."""
-    import threading
-
-    future: Future = Future()
-
-    def run() -> None:
-        try:
-            future.set_result(fn(*args))
-        except Exception as error:  # noqa: BLE001 (handed to whoever waits on the result)
-            future.set_exception(error)
-
-    threading.Thread(target=run, daemon=True).start()
-    return future
-
-
 def enable_compilation_cache() -> None:
     """JAX's persistent compilation cache under `$SPECRL_JAX_CACHE_DIR/jax` (default
     ~/.cache/specrl_jax/jax, `off` to disable), unless one is configured already, storing every
@@ -421,6 +405,7 @@ def run_command(args: argparse.Namespace) -> int:
     import jax
 
     from specrl_jax import families
+    from specrl_jax.baselines import compile_log
     from specrl_jax.benchmark import experiment
     from specrl_jax.eval import report
 
@@ -438,7 +423,7 @@ def run_command(args: argparse.Namespace) -> int:
     else:
         def compile_evaluator() -> None:  # on the host while the device trains
             shapes = experiment.param_shapes("genz", "LetterLTL0-v0", seeds)
-            evaluation.append(in_background(
+            evaluation.append(compile_log.in_background(
                 experiment.prepare_evaluation, "genz", "LetterLTL0-v0", shapes, suites, episodes))
 
         overrides = experiment.default_overrides("gpu" if gpu else "cpu", total, "letter", "genz")

@@ -103,15 +103,3 @@ def test_env_options_parse_as_literals_and_reach_the_world():
     assert int(params.max_steps) == 40 and int(method.env.params.max_steps) == 40
 
 
-def test_in_background_hands_back_results_and_errors_from_a_daemon_thread():
-    import threading
-
-    assert cli.in_background(lambda a, b: a + b, 2, 3).result(timeout=10) == 5
-    failed = cli.in_background(lambda: 1 / 0)
-    with pytest.raises(ZeroDivisionError):
-        failed.result(timeout=10)
-    release, before = threading.Event(), set(threading.enumerate())
-    cli.in_background(release.wait)  # an interrupted command must not wait for this one
-    started = set(threading.enumerate()) - before
-    assert started and all(t.daemon for t in started)
-    release.set()

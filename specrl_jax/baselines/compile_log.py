@@ -1,10 +1,13 @@
 """Ahead-of-time compilation that says what compiles and how long it took: a training's first
-minutes on a CPU are compilation, and a silent wait reads as a hang."""
+minutes on a CPU are compilation, and a silent wait reads as a hang. `in_background` runs a
+compilation beside other work."""
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import Future
 from typing import Any
 
 import jax
@@ -43,3 +46,17 @@ def compile_logged(fn: Callable, args: tuple, what: str, log: Callable[[str], No
         how = " (its traced program read from the program cache)" if read else ""
         log(f"compiled {what} in {time.perf_counter() - start:.0f} s{how}")
     return compiled
+
+
+def in_background(fn: Callable[..., Any], *args: Any) -> Future:
+    """`fn(*args)` in a daemon thread (an interrupted command exits without waiting for it)."""
+    future: Future = Future()
+
+    def run() -> None:
+        try:
+            future.set_result(fn(*args))
+        except Exception as error:  # noqa: BLE001 (handed to whoever waits on the result)
+            future.set_exception(error)
+
+    threading.Thread(target=run, daemon=True).start()
+    return future

@@ -14,7 +14,7 @@ import json
 import os
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +24,7 @@ import numpy as np
 
 from specrl_jax.automata.tensors import pack_step_planes
 from specrl_jax.baselines import hosts
-from specrl_jax.baselines.compile_log import compile_logged
+from specrl_jax.baselines.compile_log import compile_logged, in_background
 from specrl_jax.baselines.params_io import load_params, load_params_into, save_params
 from specrl_jax.baselines.ppo.train import RunnerState, Trainer
 
@@ -237,10 +237,8 @@ def train_in_run_dir(
             and not (run_dir / CHECKPOINT).exists()):
         # a fresh run on one device: the training step compiles while the initial state does
         shapes = runner_shapes(trainer, key, num_seeds)
-        pool = ThreadPoolExecutor(1)
-        compiled = pool.submit(compile_updates, trainer, shapes, num_seeds, chunk_updates, log,
-                               program_key)
-        pool.shutdown(wait=False)
+        compiled = in_background(compile_updates, trainer, shapes, num_seeds, chunk_updates, log,
+                                 program_key)
     runner = init_seeds(trainer, key, num_seeds, log, program_key)
     hosts.barrier("run directory ready")
     wall_before = 0.0

@@ -182,6 +182,12 @@ def trained_steps(config: PPOConfig) -> int:
     return config.num_updates * config.batch_size
 
 
+def lowers_in_threads(world: Any) -> bool:
+    """Whether programs stepping `world` may be lowered and compiled beside other work in another
+    thread: not with MuJoCo Warp, which builds its kernels as a program lowers."""
+    return getattr(getattr(world, "physics", None), "backend", None) != "warp"
+
+
 def warn_slow_camera(world: Any, platform: str) -> None:
     """A warning when a camera world renders large frames on a CPU (each step renders one per
     env: training takes hours)."""
@@ -251,7 +257,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         trainer, key_train, run_dir, chunk_updates, num_seeds, extra_config=extra_config,
         summarise=spec.summarise, log=log, max_wall_s=budget, restart=restart, first_chunk=1,
         program_key=programs, on_compiled=on_compiled,
-        compile_step_early=physics != "warp",  # Warp builds its kernels as a program lowers
+        compile_step_early=lowers_in_threads(world),
     )
     wall = time.perf_counter() - start
     rows = runs.read_metrics(run_dir)

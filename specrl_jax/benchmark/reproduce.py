@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import os
 import shutil
@@ -32,6 +33,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +41,7 @@ import numpy as np
 
 from specrl_jax import families
 from specrl_jax.baselines import hosts
+from specrl_jax.baselines.compile_log import in_background
 from specrl_jax.benchmark import grid
 from specrl_jax.benchmark.grid import Cell
 from specrl_jax.benchmark.store import Store, missing_work, suite_seeds
@@ -50,13 +53,14 @@ Log = Callable[[str], None]
 # One cell
 
 
-def default_train(cell: Cell, run_dir: Path, log: Log, max_wall_s: float | None = None
-                  ) -> tuple[Any, dict[str, Any]]:
+def default_train(cell: Cell, run_dir: Path, log: Log, max_wall_s: float | None = None,
+                  on_compiled: Callable[[], None] | None = None) -> tuple[Any, dict[str, Any]]:
     """Train `cell`'s seeds side by side with the family's shape on this device
     (`experiment.default_overrides`, with the method's accelerator settings) and the cell's PPO
     overrides; the worlds reset from a bank of exactly sampled layouts, of the size
     `WorldFamily.map_bank_size` gives on this device. `max_wall_s` stops training at the first
-    checkpoint after that many seconds (resumable)."""
+    checkpoint after that many seconds (resumable); `on_compiled()` runs once the training step
+    has compiled (`experiment.train`)."""
     import jax
 
     from specrl_jax.benchmark import experiment
@@ -70,7 +74,7 @@ def default_train(cell: Cell, run_dir: Path, log: Log, max_wall_s: float | None 
     return experiment.train(cell.method, cell.env_id, run_dir, overrides, cell.seeds, log=log,
                             max_wall_s=max_wall_s, map_bank=map_bank,
                             env_options=dict(cell.env_options) or None,
-                            method_options=cell.options() or None)
+                            method_options=cell.options() or None, on_compiled=on_compiled)
 
 
 def default_load(cell: Cell, path: Path, num_seeds: int) -> Any:
@@ -92,6 +96,27 @@ def default_evaluate(cell: Cell, params: Any, suites: Sequence[str], log: Log) -
                                method_options=cell.options() or None)
 
 
+def default_prepare(cell: Cell, suites: Sequence[str], log: Log) -> Future | None:
+    """`default_evaluate`'s program for `cell`'s trained parameters, compiling in a background
+    thread (before they exist, beside training) where that is safe: a trained cell on an
+    accelerator, a job of one process, a world lowered without MuJoCo Warp
+    (`experiment.lowers_in_threads`); else None. The future holds `evaluate(params)`."""
+    import jax
+
+    from specrl_jax.benchmark import experiment
+    from specrl_jax.envs.registry import make
+
+    env_options, method_options = dict(cell.env_options) or None, cell.options() or None
+    if (not cell.trains or jax.process_count() > 1 or jax.devices()[0].platform == "cpu"
+            or not experiment.lowers_in_threads(make(cell.env_id, **(env_options or {}))[0])):
+        return None
+    shapes = experiment.param_shapes(cell.method, cell.env_id, cell.seeds, env_options,
+                                     method_options)
+    return in_background(functools.partial(
+        experiment.prepare_evaluation, cell.method, cell.env_id, shapes, suites, cell.episodes,
+        log=log, env_options=env_options, method_options=method_options))
+
+
 def _save_seed1(params: Any, path: Path) -> None:
     import jax
     from flax import serialization
@@ -111,16 +136,19 @@ def _versions() -> tuple[dict[str, str], str]:
 def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
              train: Callable | None = None, evaluate: Callable | None = None,
              load: Callable | None = None, trajectories: Callable | bool = True,
-             deadline: float | None = None) -> dict[str, Any]:
+             deadline: float | None = None, prepare: Callable | None = None) -> dict[str, Any]:
     """Complete `cell` in `store`: train if its training is not complete, evaluate the suites
     it lacks, record the trajectory figure's episodes on a Zone LiDAR world; returns its
     record. `train(cell, run_dir, log, max_wall_s) -> (params, summary)`, `evaluate(cell,
     params, suites, log) -> [SuiteResult]`, `load(cell, path, num_seeds)` and
     `trajectories(cell, params) -> dict` replace the defaults (tests; `trajectories=False`: none
-    recorded). Past `deadline` (a `time.monotonic()` value) training stops at its next
+    recorded); `prepare(cell, suites, log) -> Future | None` starts compiling the evaluation of
+    every suite once the training step has compiled, its future holding `evaluate(params)`
+    (default with the default evaluation: `default_prepare`). Past `deadline` (a `time.monotonic()` value) training stops at its next
     checkpoint and the evaluation does not start; the cell stays partial, to resume. In a
     job of several processes every process calls it alike and process 0 writes."""
     store = store or Store()
+    prepare = prepare or (default_prepare if evaluate is None else None)
     train, evaluate = train or default_train, evaluate or default_evaluate
     load = load or default_load
     writer = hosts.is_writer()
@@ -137,13 +165,19 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     run_dir = store.scratch_dir(cell) / "run"
     trained = run_dir / "params.msgpack"
     params = None
+    prepared: list[Future | None] = []  # the evaluation of every suite, compiled while training
     if cell.trains:
         suites_todo = [s for s in todo if s != "train"]
         if "train" in todo or not trained.exists() and suites_todo:
             # (re)train: suites evaluated on other parameters (fewer seeds) are stale
             log(f"{cell.name}: training {cell.seeds} x {cell.total_steps:,} steps in {run_dir}")
             start = time.perf_counter()
-            params, summary = train(cell, run_dir, log, _seconds_left(deadline))
+            compile_evaluator = None
+            if prepare is not None:
+                def compile_evaluator() -> None:  # on the host while the device trains
+                    prepared.append(prepare(cell, list(cell.suites), log))
+            params, summary = train(cell, run_dir, log, _seconds_left(deadline),
+                                    **({"on_compiled": compile_evaluator} if prepare else {}))
             record["training"] = _plain(summary)
             record["training"]["complete"] = bool(summary.get("complete", True))
             record["wall_s"] = {"train": training_wall(summary, time.perf_counter() - start)}
@@ -188,7 +222,15 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
         log(f"{cell.name}: evaluating {', '.join(missing)} ({cell.seeds} seeds x "
             f"{cell.episodes} episodes)")
         start = time.perf_counter()
-        results = evaluate(cell, params, missing, log)
+        evaluator = None
+        if prepared and prepared[0] is not None and missing == list(cell.suites):
+            try:
+                evaluator = prepared[0].result()
+            except Exception as err:  # noqa: BLE001 (compiled the usual way instead)
+                log(f"{cell.name}: compiling the evaluator beside training failed "
+                    f"({type(err).__name__}: {err}); compiling it again")
+        results = (evaluator(params) if evaluator is not None
+                   else evaluate(cell, params, missing, log))
         if writer:
             record["versions"], record["device"] = _versions()
             store.write(cell, record)

@@ -5,6 +5,7 @@ incomplete; the committed store's states; `--list`."""
 import dataclasses
 import json
 import time
+from concurrent.futures import Future
 
 import numpy as np
 import pytest
@@ -36,10 +37,12 @@ class Fakes:
         self.trained, self.evaluated, self.fail_on, self.train_s = 0, [], fail_on, train_s
         self.limits = []
 
-    def train(self, cell, run_dir, log, max_wall_s=None):
+    def train(self, cell, run_dir, log, max_wall_s=None, on_compiled=None):
         """Completes unless given no time (`max_wall_s` 0): then it stops after its first update,
         as the real training stops at its first checkpoint."""
         self.trained += 1
+        if on_compiled is not None:
+            on_compiled()
         self.limits.append(max_wall_s)
         time.sleep(self.train_s)
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -83,6 +86,42 @@ def test_a_cell_is_trained_evaluated_then_skipped(tmp_path):
     states = reproduce.reproduce(cells=[CELL], store=store, gpus=1, log=lambda line: None,
                                  train=again.train, evaluate=again.evaluate, load=again.load)
     assert states == {CELL.name: "done"} and again.trained == 0
+
+
+def test_the_evaluator_compiled_beside_training_scores_the_trained_cell(tmp_path):
+    fakes, asked = Fakes(), []
+
+    def prepare(cell, suites, log):  # its future holds the evaluation of every suite
+        asked.append(list(suites))
+
+        def evaluator(params):
+            asked.append("used")
+            return fakes.evaluate(cell, params, suites, log)
+
+        future = Future()
+        future.set_result(evaluator)
+        return future
+
+    store = Store(tmp_path)
+    record = reproduce.run_cell(CELL, store, log=lambda line: None, train=fakes.train,
+                                evaluate=fakes.evaluate, load=fakes.load, trajectories=False,
+                                prepare=prepare)
+    assert record["state"] == "done" and asked == [list(CELL.suites), "used"]
+    assert fakes.evaluated == list(CELL.suites)  # once, through the prepared evaluator
+    failing = Fakes()  # a failed background compilation: evaluated the usual way
+
+    def broken(cell, suites, log):
+        future = Future()
+        future.set_exception(RuntimeError("out of memory"))
+        return future
+
+    lines = []
+    record = reproduce.run_cell(CELL, Store(tmp_path / "b"), log=lines.append,
+                                train=failing.train, evaluate=failing.evaluate, load=failing.load,
+                                trajectories=False, prepare=broken)
+    assert record["state"] == "done" and failing.evaluated == list(CELL.suites)
+    assert any("compiling the evaluator beside training failed (RuntimeError: out of memory)"
+               in line for line in lines)
 
 
 def test_an_interrupted_evaluation_resumes_at_the_missing_suites(tmp_path):
