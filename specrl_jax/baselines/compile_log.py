@@ -49,14 +49,21 @@ def compile_logged(fn: Callable, args: tuple, what: str, log: Callable[[str], No
 
 
 def in_background(fn: Callable[..., Any], *args: Any) -> Future:
-    """`fn(*args)` in a daemon thread (an interrupted command exits without waiting for it)."""
+    """`fn(*args)` in another thread, under the caller's JAX settings that are kept per thread
+    (x64, default matmul precision, default device); its error, if any, is the future's. The
+    process waits for the thread at exit: leaving during an XLA compilation crashes."""
+    settings = (jax.config.jax_enable_x64, jax.config.jax_default_matmul_precision,
+                jax.config.jax_default_device)
     future: Future = Future()
 
     def run() -> None:
+        x64, precision, device = settings
         try:
-            future.set_result(fn(*args))
-        except Exception as error:  # noqa: BLE001 (handed to whoever waits on the result)
+            with jax.enable_x64(x64), jax.default_matmul_precision(precision), \
+                    jax.default_device(device):
+                future.set_result(fn(*args))
+        except BaseException as error:  # noqa: BLE001 (handed to whoever waits on the result)
             future.set_exception(error)
 
-    threading.Thread(target=run, daemon=True).start()
+    threading.Thread(target=run).start()
     return future

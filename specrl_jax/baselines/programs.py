@@ -36,6 +36,13 @@ def _describe(structure: Any) -> str:
     return re.sub(r" at 0x[0-9a-fA-F]+", "", str(structure))
 
 
+def _placement(leaf: Any) -> str:
+    """A leaf's sharding as the entry's name holds it: one device's placements (a shape's none,
+    a single device, a mesh of one) are one, as the exported program is the same for them."""
+    sharding = getattr(leaf, "sharding", None)
+    return "one device" if sharding is None or len(sharding.device_set) == 1 else repr(sharding)
+
+
 def _entry_name(key: str, args: tuple, static_argnums: int | Sequence[int] = (),
                donate_argnums: int | Sequence[int] = ()) -> str:
     """The entry of the program `key` compiled for `args` (static ones by value, the others by
@@ -45,7 +52,7 @@ def _entry_name(key: str, args: tuple, static_argnums: int | Sequence[int] = (),
     leaves, structure = jax.tree.flatten(dynamic)
     return "program_" + cache.digest({
         "key": key, "structure": _describe(structure),
-        "leaves": [(repr(jax.typeof(x)), repr(getattr(x, "sharding", None))) for x in leaves],
+        "leaves": [(repr(jax.typeof(x)), _placement(x)) for x in leaves],
         "static": [repr(args[i]) for i in sorted(static)],
         "donate": sorted(_positions(donate_argnums))})
 

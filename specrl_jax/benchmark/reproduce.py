@@ -175,7 +175,11 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
             compile_evaluator = None
             if prepare is not None:
                 def compile_evaluator() -> None:  # on the host while the device trains
-                    prepared.append(prepare(cell, list(cell.suites), log))
+                    try:
+                        prepared.append(prepare(cell, list(cell.suites), log))
+                    except Exception as err:  # noqa: BLE001 (compiled after training instead)
+                        log(f"{cell.name}: the evaluator will compile after training "
+                            f"({type(err).__name__}: {err})")
             params, summary = train(cell, run_dir, log, _seconds_left(deadline),
                                     **({"on_compiled": compile_evaluator} if prepare else {}))
             record["training"] = _plain(summary)

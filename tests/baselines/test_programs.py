@@ -70,6 +70,17 @@ def test_a_stored_program_computes_what_the_traced_one_does(tmp_path, monkeypatc
     assert len(_entries(tmp_path)) == 4
 
 
+def test_shapes_arrays_and_a_mesh_of_one_device_name_the_same_entry(tmp_path, monkeypatch):
+    """A fresh training compiles its step from shapes while a resumed one has arrays (placed
+    by a one-device mesh): the resumed run reads the fresh run's entry."""
+    monkeypatch.setenv(cache.ENV_VAR, str(tmp_path))
+    shapes = jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape, x.dtype), _carry())
+    mesh = env_mesh([jax.devices()[0]])
+    placed = jax.device_put(_carry(), jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))
+    assert [_compile(carry=c)[1] for c in (shapes, _carry(), placed)] == [False, True, True]
+    assert len(_entries(tmp_path)) == 1
+
+
 class Tag:
     """Static metadata of a default repr (naming its address), equal only to itself."""
 

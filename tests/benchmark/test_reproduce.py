@@ -122,6 +122,18 @@ def test_the_evaluator_compiled_beside_training_scores_the_trained_cell(tmp_path
     assert record["state"] == "done" and failing.evaluated == list(CELL.suites)
     assert any("compiling the evaluator beside training failed (RuntimeError: out of memory)"
                in line for line in lines)
+    raising = Fakes()  # failing before its thread starts: the training goes on
+
+    def unbuildable(cell, suites, log):
+        raise ValueError("no such world")
+
+    lines.clear()
+    record = reproduce.run_cell(CELL, Store(tmp_path / "c"), log=lines.append,
+                                train=raising.train, evaluate=raising.evaluate, load=raising.load,
+                                trajectories=False, prepare=unbuildable)
+    assert record["state"] == "done" and raising.evaluated == list(CELL.suites)
+    assert any("the evaluator will compile after training (ValueError: no such world)" in line
+               for line in lines)
 
 
 def test_an_interrupted_evaluation_resumes_at_the_missing_suites(tmp_path):
