@@ -142,12 +142,14 @@ def program_key(method: str, run_config: dict[str, Any], world: Any, params: Any
     them), the arrays of the method object's fields (GCRL-LTL's primitives, a pretrained
     encoder), the files that options name, every file of the package, the versions, JAX's
     settings and the device. None with caching off, on several devices (`programs` keeps
-    single-device programs), where a program may run code outside the package (a method, its
+    single-device programs) or on another than the default device (a stored program runs where
+    its arguments are, not where the mesh says), where a program may run code outside the package (a method, its
     hooks or a world registered by the user), which no digest here sees, and where an option is
     an object rather than plain data (a network, a bank: its text need not name its content)."""
     spec = get_method(method)
     hooks = [h for h in (spec.make_method, spec.prepare_training, spec.finish_training) if h]
-    if (cache.programs_dir() is None or mesh.size > 1
+    default_device = jax.config.jax_default_device or jax.devices()[0]
+    if (cache.programs_dir() is None or mesh.size > 1 or mesh.devices.flat[0] != default_device
             or not cache.in_package(type(world), *hooks)
             or not all(_plain(v) for v in (method_options or {}).values())):
         return None

@@ -6,6 +6,7 @@ entry is traced again, nothing is stored with caching off, and the key changes w
 of the programs."""
 
 import dataclasses
+import types
 
 import jax
 import jax.numpy as jnp
@@ -184,6 +185,10 @@ def test_the_program_key_changes_with_every_input_of_the_programs(tmp_path, monk
     assert len({base, *changed}) == 1 + len(changed)
     # an option that is an object, not plain data (its text need not name its content)
     assert key(options={"network": object()}) is None
+    # a mesh on another device than the default one: a stored program would run on the default
+    other = types.SimpleNamespace(size=1, devices=np.array([object()]))
+    assert experiment.program_key("ltl2action", runs.run_config(config, 1, {}), world, params,
+                                  method, other, None) is None
     monkeypatch.setattr(cache, "package_digest", lambda: "another package")
     assert key() != base
     # a method defined outside the package, or with a hook from outside: traced every time
