@@ -2,7 +2,7 @@
 curve, and a progress line with env-steps/s.
 
 Layout of `run_dir`: `config.json`, `metrics.jsonl` (one line per update), `checkpoint.msgpack`
-(the whole `RunnerState`, flax serialisation), `curve.png`. In a job of several processes
+(the whole `RunnerState`, flax serialisation, booleans as packed bits), `curve.png`. In a job of several processes
 (`hosts`), process 0 alone writes them and every process resumes from its checkpoint.
 """
 
@@ -21,6 +21,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from flax import serialization
 
 from specrl_jax.automata.tensors import pack_step_planes
 from specrl_jax.baselines import hosts
@@ -41,12 +42,27 @@ class TrainingInterrupted(KeyboardInterrupt):
 
 
 def save_checkpoint(path: str | os.PathLike, runner: RunnerState) -> None:
-    """Write `runner` atomically (typed PRNG keys are stored as raw key data); in a job of
-    several processes call it on every process (it gathers the sharded env batch), process 0
-    writes."""
+    """Write `runner` atomically (typed PRNG keys are stored as raw key data, boolean arrays as
+    packed bits: a task's reach and avoid sets over a large alphabet are most of an env's state);
+    in a job of several processes call it on every process (it gathers the sharded env batch),
+    process 0 writes."""
     state = hosts.host_copy(runner.replace(key=jax.random.key_data(runner.key)))
     if hosts.is_writer():
-        save_params(path, state)
+        save_params(path, jax.tree.map(
+            lambda x: np.packbits(x, axis=None) if x.dtype == bool else x, state))
+
+
+def _unpack_bits(template: Any, stored: Any) -> Any:
+    """`stored` (a checkpoint's state dict) with the bits `save_checkpoint` packed unpacked into
+    the boolean arrays of `template` (its state dict); a checkpoint of unpacked booleans is
+    left as it is."""
+    if isinstance(stored, dict):
+        return {k: _unpack_bits(template[k], v) if isinstance(template, dict) and k in template
+                else v for k, v in stored.items()}
+    want = np.asarray(template)
+    if want.dtype == bool and np.asarray(stored).dtype == np.uint8:
+        return np.unpackbits(np.asarray(stored), count=want.size).reshape(want.shape).astype(bool)
+    return stored
 
 
 def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerState:
@@ -56,9 +72,11 @@ def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerSta
         ValueError: naming the file, when it cannot be read or does not fit `template`.
     """
     raw = template.replace(key=jax.random.key_data(template.key))
+    zeros = jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), raw)
     try:
         stored = add_derived_spec_fields(load_params(path, what="training checkpoint"))
-        restored = load_params_into(jax.tree.map(lambda x: np.zeros(x.shape, x.dtype), raw), stored)
+        stored = _unpack_bits(serialization.to_state_dict(zeros), stored)
+        restored = load_params_into(zeros, stored)
     except ValueError as err:
         raise ValueError(f"checkpoint {path} cannot be read ({err}); delete it, or start over "
                          "with --restart, or use another --out") from err

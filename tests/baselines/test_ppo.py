@@ -25,6 +25,7 @@ from specrl_jax.baselines.ppo.losses import (
     rco_loss,
 )
 from specrl_jax.baselines.ppo.networks import Categorical, DiagGaussian, PolicyOutput
+from specrl_jax.benchmark import experiment
 
 sys.path.insert(0, str(Path(__file__).parent))
 from chain import ChainMethod
@@ -306,6 +307,27 @@ def test_resume_gives_identical_continuation(tmp_path, monkeypatch):
     assert [r["reward"] for r in rows_a] == [r["reward"] for r in rows_b]
     assert [r["wall_s"] for r in rows_a] == [r["wall_s"] for r in rows_b] == [1.0, 1.0, 2.0, 2.0]
     assert json.loads((tmp_path / "a" / "config.json").read_text())["ppo"]["num_envs"] == 4
+
+
+def test_checkpoints_store_booleans_as_bits_and_read_unpacked_ones_too(tmp_path):
+    from flax import serialization
+
+    _, _, method, config = experiment.build("deepltl", "LetterLTL0-v0",
+                                            {"num_envs": 4, "num_steps": 8}, None, jax.random.key(0))
+    runner = jax.jit(make_train(config, method).init)(jax.random.key(3))
+    flags = [x for x in jax.tree.leaves(runner) if x.dtype == bool]
+    assert flags and sum(x.size for x in flags) >= 8  # the runner has boolean state to pack
+    runs.save_checkpoint(tmp_path / "packed.msgpack", runner)
+    stored = serialization.msgpack_restore((tmp_path / "packed.msgpack").read_bytes())
+    assert not any(np.asarray(x).dtype == bool for x in jax.tree.leaves(stored))
+    plain = jax.device_get(runner.replace(key=jax.random.key_data(runner.key)))
+    (tmp_path / "plain.msgpack").write_bytes(serialization.to_bytes(plain))  # the earlier format
+    for name in ("packed", "plain"):
+        loaded = runs.load_checkpoint(tmp_path / f"{name}.msgpack", runner)
+        for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(
+                loaded.replace(key=jax.random.key_data(loaded.key))), strict=True):
+            assert np.asarray(a).dtype == np.asarray(b).dtype
+            np.testing.assert_array_equal(a, b)
 
 
 def test_checkpoints_without_step_planes_still_load():
