@@ -59,10 +59,10 @@ def _unpack_bits(template: Any, stored: Any) -> Any:
     if isinstance(stored, dict):
         return {k: _unpack_bits(template[k], v) if isinstance(template, dict) and k in template
                 else v for k, v in stored.items()}
-    want = np.asarray(template)
-    if want.dtype == bool and np.asarray(stored).dtype == np.uint8:
-        return np.unpackbits(np.asarray(stored), count=want.size).reshape(want.shape).astype(bool)
-    return stored
+    want, bits = np.asarray(template), np.asarray(stored)
+    if want.dtype == bool and bits.dtype == np.uint8 and bits.shape == (-(-want.size // 8),):
+        return np.unpackbits(bits, count=want.size).reshape(want.shape).astype(bool)
+    return stored  # another shape: `load_checkpoint` names it
 
 
 def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerState:
@@ -77,6 +77,11 @@ def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerSta
         stored = add_derived_spec_fields(load_params(path, what="training checkpoint"))
         stored = _unpack_bits(serialization.to_state_dict(zeros), stored)
         restored = load_params_into(zeros, stored)
+        for (where, want), got in zip(jax.tree_util.tree_leaves_with_path(zeros),
+                                      jax.tree.leaves(restored), strict=True):
+            if np.shape(got) != want.shape:
+                raise ValueError(f"{jax.tree_util.keystr(where)} is stored as {np.shape(got)}, "
+                                 f"this run's is {want.shape}")
     except ValueError as err:
         raise ValueError(f"checkpoint {path} cannot be read ({err}); delete it, or start over "
                          "with --restart, or use another --out") from err

@@ -148,7 +148,9 @@ def program_key(method: str, run_config: dict[str, Any], world: Any, params: Any
     an object rather than plain data (a network, a bank: its text need not name its content)."""
     spec = get_method(method)
     hooks = [h for h in (spec.make_method, spec.prepare_training, spec.finish_training) if h]
-    default_device = jax.config.jax_default_device or jax.devices()[0]
+    default_device = jax.config.jax_default_device  # a device, a platform's name or None
+    if default_device is None or isinstance(default_device, str):
+        default_device = jax.local_devices(backend=default_device)[0]
     if (cache.programs_dir() is None or mesh.size > 1 or mesh.devices.flat[0] != default_device
             or not cache.in_package(type(world), *hooks)
             or not all(_plain(v) for v in (method_options or {}).values())):

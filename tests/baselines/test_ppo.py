@@ -324,6 +324,11 @@ def test_checkpoints_store_booleans_as_bits_and_read_unpacked_ones_too(tmp_path)
     (tmp_path / "plain.msgpack").write_bytes(serialization.to_bytes(plain))  # the earlier format
     for name in ("packed", "plain"):
         loaded = runs.load_checkpoint(tmp_path / f"{name}.msgpack", runner)
+        if name == "packed":  # bits packed from another shape are refused, not reinterpreted
+            widened = jax.tree.map(lambda x: jnp.zeros((2, *x.shape), bool) if x.dtype == bool
+                                   else x, runner)
+            with pytest.raises(ValueError, match=r"cannot be read \(.* is stored as \(\d+,?\d*"):
+                runs.load_checkpoint(tmp_path / "packed.msgpack", widened)
         for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(
                 loaded.replace(key=jax.random.key_data(loaded.key))), strict=True):
             assert np.asarray(a).dtype == np.asarray(b).dtype

@@ -189,6 +189,8 @@ def test_the_program_key_changes_with_every_input_of_the_programs(tmp_path, monk
     other = types.SimpleNamespace(size=1, devices=np.array([object()]))
     assert experiment.program_key("ltl2action", runs.run_config(config, 1, {}), world, params,
                                   method, other, None) is None
+    with jax.default_device(jax.devices()[0].platform):  # the default named by its platform
+        assert key() is not None
     monkeypatch.setattr(cache, "package_digest", lambda: "another package")
     assert key() != base
     # a method defined outside the package, or with a hook from outside: traced every time
