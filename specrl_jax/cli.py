@@ -405,7 +405,6 @@ def run_command(args: argparse.Namespace) -> int:
     import jax
 
     from specrl_jax import families
-    from specrl_jax.baselines import compile_log
     from specrl_jax.benchmark import experiment
     from specrl_jax.eval import report
 
@@ -422,9 +421,8 @@ def run_command(args: argparse.Namespace) -> int:
         summary = {"loaded_from": args.params}
     else:
         def compile_evaluator() -> None:  # on the host while the device trains
-            shapes = experiment.param_shapes("genz", "LetterLTL0-v0", seeds)
-            evaluation.append(compile_log.in_background(
-                experiment.prepare_evaluation, "genz", "LetterLTL0-v0", shapes, suites, episodes))
+            evaluation.append(experiment.prepare_evaluation_in_background(
+                "genz", "LetterLTL0-v0", seeds, suites, episodes))
 
         overrides = experiment.default_overrides("gpu" if gpu else "cpu", total, "letter", "genz")
         if not gpu:  # a short budget: fewer epochs per update keeps it to minutes on two cores

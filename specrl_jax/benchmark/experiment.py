@@ -9,12 +9,14 @@ mean and std over the seeds.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import os
 import time
 import warnings
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +25,7 @@ import numpy as np
 
 from specrl_jax import cache, families, specs
 from specrl_jax.baselines import hosts, runs
+from specrl_jax.baselines.compile_log import in_background
 from specrl_jax.baselines.params_io import load_params as read_params
 from specrl_jax.baselines.params_io import load_params_into, save_params
 from specrl_jax.baselines.ppo import PPOConfig, env_mesh, make_train
@@ -143,9 +146,10 @@ def program_key(method: str, run_config: dict[str, Any], world: Any, params: Any
     encoder), the files that options name, every file of the package, the versions, JAX's
     settings and the device. None with caching off, on several devices (`programs` keeps
     single-device programs) or on another than the default device (a stored program runs where
-    its arguments are, not where the mesh says), where a program may run code outside the package (a method, its
-    hooks or a world registered by the user), which no digest here sees, and where an option is
-    an object rather than plain data (a network, a bank: its text need not name its content)."""
+    its arguments are, not where the mesh says), where a program may run code outside the
+    package (a method, its hooks or a world registered by the user), which no digest here sees,
+    and where an option is an object rather than plain data (a network, a bank: its text need
+    not name its content)."""
     spec = get_method(method)
     hooks = [h for h in (spec.make_method, spec.prepare_training, spec.finish_training) if h]
     default_device = jax.config.jax_default_device  # a device, a platform's name or None
@@ -369,6 +373,19 @@ def prepare_evaluation(method: str, env_id: str, params: Any, suites: Sequence[s
         policy_params=params, params_per_seed=True, horizon=horizon,
         label=label or spec.title, log=log, devices=devices,
     )
+
+
+def prepare_evaluation_in_background(method: str, env_id: str, num_seeds: int,
+                                     suites: Sequence[str], episodes: int,
+                                     log: Callable[[str], None] = print,
+                                     env_options: dict[str, Any] | None = None,
+                                     method_options: dict[str, Any] | None = None) -> Future:
+    """`prepare_evaluation` for the parameters `num_seeds` seeds of `method` will have, compiling
+    in another thread (e.g. while they train); the future holds `evaluate(params)`."""
+    shapes = param_shapes(method, env_id, num_seeds, env_options, method_options)
+    return in_background(functools.partial(
+        prepare_evaluation, method, env_id, shapes, suites, episodes, log=log,
+        env_options=env_options, method_options=method_options))
 
 
 def param_shapes(method: str, env_id: str, num_seeds: int | None = None,

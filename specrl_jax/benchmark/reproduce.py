@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import functools
 import json
 import os
 import shutil
@@ -41,7 +40,6 @@ import numpy as np
 
 from specrl_jax import families
 from specrl_jax.baselines import hosts
-from specrl_jax.baselines.compile_log import in_background
 from specrl_jax.benchmark import grid
 from specrl_jax.benchmark.grid import Cell
 from specrl_jax.benchmark.store import Store, missing_work, suite_seeds
@@ -110,11 +108,9 @@ def default_prepare(cell: Cell, suites: Sequence[str], log: Log) -> Future | Non
     if (not cell.trains or jax.process_count() > 1 or jax.devices()[0].platform == "cpu"
             or not experiment.lowers_in_threads(make(cell.env_id, **(env_options or {}))[0])):
         return None
-    shapes = experiment.param_shapes(cell.method, cell.env_id, cell.seeds, env_options,
-                                     method_options)
-    return in_background(functools.partial(
-        experiment.prepare_evaluation, cell.method, cell.env_id, shapes, suites, cell.episodes,
-        log=log, env_options=env_options, method_options=method_options))
+    return experiment.prepare_evaluation_in_background(
+        cell.method, cell.env_id, cell.seeds, suites, cell.episodes, log, env_options,
+        method_options)
 
 
 def _save_seed1(params: Any, path: Path) -> None:
@@ -139,12 +135,12 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
              deadline: float | None = None, prepare: Callable | None = None) -> dict[str, Any]:
     """Complete `cell` in `store`: train if its training is not complete, evaluate the suites
     it lacks, record the trajectory figure's episodes on a Zone LiDAR world; returns its
-    record. `train(cell, run_dir, log, max_wall_s) -> (params, summary)`, `evaluate(cell,
-    params, suites, log) -> [SuiteResult]`, `load(cell, path, num_seeds)` and
+    record. `train(cell, run_dir, log, max_wall_s, on_compiled) -> (params, summary)`,
+    `evaluate(cell, params, suites, log) -> [SuiteResult]`, `load(cell, path, num_seeds)` and
     `trajectories(cell, params) -> dict` replace the defaults (tests; `trajectories=False`: none
     recorded); `prepare(cell, suites, log) -> Future | None` starts compiling the evaluation of
-    every suite once the training step has compiled, its future holding `evaluate(params)`
-    (default with the default evaluation: `default_prepare`). Past `deadline` (a `time.monotonic()` value) training stops at its next
+    every suite when `on_compiled` runs (once the training step has compiled), its future holding `evaluate(params)` (default with the default evaluation:
+    `default_prepare`). Past `deadline` (a `time.monotonic()` value) training stops at its next
     checkpoint and the evaluation does not start; the cell stays partial, to resume. In a
     job of several processes every process calls it alike and process 0 writes."""
     store = store or Store()
@@ -172,16 +168,15 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
             # (re)train: suites evaluated on other parameters (fewer seeds) are stale
             log(f"{cell.name}: training {cell.seeds} x {cell.total_steps:,} steps in {run_dir}")
             start = time.perf_counter()
-            compile_evaluator = None
-            if prepare is not None:
-                def compile_evaluator() -> None:  # on the host while the device trains
-                    try:
-                        prepared.append(prepare(cell, list(cell.suites), log))
-                    except Exception as err:  # noqa: BLE001 (compiled after training instead)
-                        log(f"{cell.name}: the evaluator will compile after training "
-                            f"({type(err).__name__}: {err})")
+
+            def compile_evaluator() -> None:  # on the host while the device trains
+                try:
+                    prepared.append(prepare(cell, list(cell.suites), log))
+                except Exception as err:  # noqa: BLE001 (compiled after training instead)
+                    log(f"{cell.name}: the evaluator will compile after training "
+                        f"({type(err).__name__}: {err})")
             params, summary = train(cell, run_dir, log, _seconds_left(deadline),
-                                    **({"on_compiled": compile_evaluator} if prepare else {}))
+                                    compile_evaluator if prepare is not None else None)
             record["training"] = _plain(summary)
             record["training"]["complete"] = bool(summary.get("complete", True))
             record["wall_s"] = {"train": training_wall(summary, time.perf_counter() - start)}

@@ -178,8 +178,8 @@ def test_evaluate_runs_each_trained_seed_on_the_suite_protocol(monkeypatch):
     # compiled from the parameters' shapes alone (as `specrl-jax run` does while it trains)
     shapes = experiment.param_shapes("genz", "LetterLTL0-v0", 2)
     assert jax.tree.map(lambda x: x.shape, shapes) == jax.tree.map(lambda x: x.shape, two_seeds)
-    evaluate = experiment.prepare_evaluation("genz", "LetterLTL0-v0", shapes,
-                                             ["letter/finite/ind"], 3, log=lambda s: None)
+    evaluate = experiment.prepare_evaluation_in_background(
+        "genz", "LetterLTL0-v0", 2, ["letter/finite/ind"], 3, log=lambda s: None).result()
     (again,) = evaluate(jax.device_get(two_seeds))
     for a, b in zip(again.result.table, table, strict=True):
         np.testing.assert_array_equal(a, b)
