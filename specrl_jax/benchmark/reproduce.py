@@ -135,16 +135,17 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
              deadline: float | None = None, prepare: Callable | None = None) -> dict[str, Any]:
     """Complete `cell` in `store`: train if its training is not complete, evaluate the suites
     it lacks, record the trajectory figure's episodes on a Zone LiDAR world; returns its
-    record. `train(cell, run_dir, log, max_wall_s, on_compiled) -> (params, summary)`,
-    `evaluate(cell, params, suites, log) -> [SuiteResult]`, `load(cell, path, num_seeds)` and
+    record. `train(cell, run_dir, log, max_wall_s) -> (params, summary)`, `evaluate(cell,
+    params, suites, log) -> [SuiteResult]`, `load(cell, path, num_seeds)` and
     `trajectories(cell, params) -> dict` replace the defaults (tests; `trajectories=False`: none
     recorded); `prepare(cell, suites, log) -> Future | None` starts compiling the evaluation of
-    every suite when `on_compiled` runs (once the training step has compiled), its future holding `evaluate(params)` (default with the default evaluation:
-    `default_prepare`). Past `deadline` (a `time.monotonic()` value) training stops at its next
-    checkpoint and the evaluation does not start; the cell stays partial, to resume. In a
-    job of several processes every process calls it alike and process 0 writes."""
+    every suite once the training step has compiled (`train` is then also given
+    `on_compiled=`), its future holding `evaluate(params)` (default with the default training
+    and evaluation: `default_prepare`). Past `deadline` (a `time.monotonic()` value) training
+    stops at its next checkpoint and the evaluation does not start; the cell stays partial, to
+    resume. In a job of several processes every process calls it alike and process 0 writes."""
     store = store or Store()
-    prepare = prepare or (default_prepare if evaluate is None else None)
+    prepare = prepare or (default_prepare if train is None and evaluate is None else None)
     train, evaluate = train or default_train, evaluate or default_evaluate
     load = load or default_load
     writer = hosts.is_writer()
@@ -176,7 +177,7 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
                     log(f"{cell.name}: the evaluator will compile after training "
                         f"({type(err).__name__}: {err})")
             params, summary = train(cell, run_dir, log, _seconds_left(deadline),
-                                    compile_evaluator if prepare is not None else None)
+                                    **({"on_compiled": compile_evaluator} if prepare else {}))
             record["training"] = _plain(summary)
             record["training"]["complete"] = bool(summary.get("complete", True))
             record["wall_s"] = {"train": training_wall(summary, time.perf_counter() - start)}
