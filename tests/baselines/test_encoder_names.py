@@ -47,3 +47,13 @@ def test_a_missing_shipped_encoder_says_how_to_make_it():
         rad_pretrain.load_encoder("letter_overlap", 4096)
     with pytest.raises(ValueError, match=r"pretrain --method rad --family FAMILY --out PATH`"):
         rad_pretrain.load_encoder("/nonexistent/encoder.msgpack", 5)
+
+
+def test_the_grippers_arm_alphabet_reads_its_shipped_encoder():
+    world = make("PandaLTLReach1Joints-v0", table_contacts=False)[0]
+    alphabet = np.asarray(world.alphabet)
+    name = families.encoder_name("arm", alphabet, per_symbol=True)
+    assert name == "arm_overlap"
+    params = rad_pretrain.load_encoder(name, alphabet.shape[0])
+    kernel = np.asarray(params["params"]["embed"]["kernel"])
+    assert kernel.shape[0] >= alphabet.shape[0] == 256 and np.isfinite(kernel).all()
