@@ -2,7 +2,9 @@
 (`vmap`) PPO should use.
 
 The paper's image CNN (`encoders.ImageCNN`: 5 layers, kernel 5, stride 2, padding 1) is timed for
-`--seeds` parameter sets side by side, as training runs them, in three implementations:
+`--seeds` parameter sets side by side (`vmap`), as training runs them, or one after the other
+(`--in-turn`: `lax.map`, as seeds that learn in turn take their gradients), in these
+implementations:
 
   library  `lax.conv_general_dilated` (what `flax.linen.Conv` calls); under `vmap` its forward is
            a feature-grouped convolution, its weight gradient a batch-grouped one
@@ -11,9 +13,11 @@ The paper's image CNN (`encoders.ImageCNN`: 5 layers, kernel 5, stride 2, paddin
            (`jax.custom_vjp`)
   shifted  the sum over the kernel's size x size offsets of one matmul per strided view (no patch
            matrix: XLA may fuse each view into its matmul)
-  recompute  `ImageCNN(library_forward=True)`: the library's forward, saving only each layer's
+  recompute  `ImageCNN(conv="library_forward")`: the library's forward, saving only each layer's
            input; the backward pass is the patch matmul's, its patch matrix rebuilt from that
            input (`jax.custom_vjp`)
+  auto     `ImageCNN(conv="auto")`, the package's default: the library's forward and gradient for
+           one set of parameters, the patch matmul's gradient under `vmap` (on a GPU)
   patches_bf16  `patches` with the patch matrix and the kernel in bfloat16, accumulated in float32
            (half the patch matrix's memory traffic; gradients within bfloat16's precision)
 
@@ -108,10 +112,11 @@ def cnn_with(conv: Callable[[jax.Array, jax.Array], jax.Array]) -> Callable:
 
 IMPLEMENTATIONS = {
     "library": cnn_with(library_conv),
-    "patches": ImageCNN().apply,
+    "patches": ImageCNN(conv="patch").apply,
+    "auto": ImageCNN(conv="auto").apply,
     "hybrid": cnn_with(hybrid_conv),
     "shifted": cnn_with(shifted_conv),
-    "recompute": ImageCNN(library_forward=True).apply,
+    "recompute": ImageCNN(conv="library_forward").apply,
     "patches_bf16": cnn_with(patches_bf16_conv),
 }
 #: largest relative gradient difference to the library's: TF32 matmuls and convolutions on GPUs
@@ -120,13 +125,17 @@ IMPLEMENTATIONS = {
 TOLERANCE = {"patches_bf16": 0.3}
 
 
-def programs(apply: Callable, params: Any, images: jax.Array) -> dict[str, Any]:
-    """The compiled forward and gradient programs of `apply` over the seed axis."""
+def programs(apply: Callable, params: Any, images: jax.Array, in_turn: bool) -> dict[str, Any]:
+    """The compiled forward and gradient programs of `apply` over the seed axis (`vmap`, or
+    `lax.map` if `in_turn`)."""
     def loss(p, x):
         return jnp.sum(jnp.sin(apply(p, x)))
 
-    forward = jax.jit(jax.vmap(apply)).lower(params, images).compile()
-    gradient = jax.jit(jax.vmap(jax.value_and_grad(loss))).lower(params, images).compile()
+    def over_seeds(fn):
+        return (lambda p, x: jax.lax.map(lambda a: fn(*a), (p, x))) if in_turn else jax.vmap(fn)
+
+    forward = jax.jit(over_seeds(apply)).lower(params, images).compile()
+    gradient = jax.jit(over_seeds(jax.value_and_grad(loss))).lower(params, images).compile()
     return {"forward": forward, "gradient": gradient}
 
 
@@ -146,16 +155,16 @@ def temp_gib(compiled: Any) -> float | None:
 
 
 def measure(name: str, seeds: int, size: int, images_per_seed: int, repeats: int,
-            reference: Any) -> tuple[dict[str, Any], Any]:
+            reference: Any, in_turn: bool = False) -> tuple[dict[str, Any], Any]:
     """One implementation at one case: its times, memory, gradients' largest relative difference
     to `reference` (the library's, or None), and its gradients."""
     key = jax.random.key(0)
     images = jax.random.randint(key, (seeds, images_per_seed, size, size, 3), 0, 256).astype(jnp.uint8)
     params = jax.vmap(lambda k: ImageCNN().init(k, images[0, :1]))(jax.random.split(key, seeds))
     row: dict[str, Any] = {"implementation": name, "image_size": size, "seeds": seeds,
-                           "images_per_seed": images_per_seed}
+                           "images_per_seed": images_per_seed, "in_turn": in_turn}
     try:
-        compiled = programs(IMPLEMENTATIONS[name], params, images)
+        compiled = programs(IMPLEMENTATIONS[name], params, images, in_turn)
         row["forward_ms"] = round(median_ms(lambda: compiled["forward"](params, images), repeats), 3)
         row["gradient_ms"] = round(median_ms(lambda: compiled["gradient"](params, images), repeats), 3)
         row["forward_temp_gib"] = temp_gib(compiled["forward"])
@@ -182,6 +191,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="image size and images per seed")
     parser.add_argument("--implementations", nargs="+", default=list(IMPLEMENTATIONS),
                         choices=list(IMPLEMENTATIONS))
+    parser.add_argument("--in-turn", action="store_true",
+                        help="the seeds one after the other (lax.map) instead of side by side")
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--out", default=None, help="append the JSON rows to this file")
     args = parser.parse_args(argv)
@@ -197,7 +208,7 @@ def main() -> None:
     for size, images in args.cases:
         reference = None
         for name in sorted(args.implementations, key=lambda n: n != "library"):
-            row, grads = measure(name, args.seeds, size, images, args.repeats, reference)
+            row, grads = measure(name, args.seeds, size, images, args.repeats, reference, args.in_turn)
             if name == "library":
                 reference = grads
             if "out_of_memory" in row:
@@ -206,7 +217,7 @@ def main() -> None:
                 value = (f"forward {row['forward_ms']:.2f} ms, forward and gradient "
                          f"{row['gradient_ms']:.2f} ms")
             print(f"{size:4} x {size:<4} {images:6} images/seed  {name:9} {value}", flush=True)
-            harness.emit(harness.row(f"Image CNN under vmap, {name}, {size}x{size}", value,
+            harness.emit(harness.row(f"Image CNN {'in turn' if args.in_turn else 'under vmap'}, {name}, {size}x{size}", value,
                                      args.seeds * images, **row), args.out)
 
 

@@ -56,10 +56,10 @@ def obs_parts(obs: Mapping[str, jax.Array], obs_kinds: Mapping[str, str],
 
 class ImageCNN(nn.Module):
     """Conv 5x5, stride 2, padding 1, ReLU, channels (16, 32, 64, 64, 32), on uint8[..., H, W, 3]
-    scaled to [0, 1]; flattened. `library_forward`: `PatchConv`'s."""
+    scaled to [0, 1]; flattened. `conv`: `PatchConv`'s."""
 
     channels: tuple[int, ...] = (16, 32, 64, 64, 32)
-    library_forward: bool = False
+    conv: str = "auto"
 
     @nn.compact
     def __call__(self, image: jax.Array) -> jax.Array:
@@ -67,7 +67,7 @@ class ImageCNN(nn.Module):
         batch = x.shape[:-3]
         x = x.reshape(-1, *x.shape[-3:])
         for i, width in enumerate(self.channels):
-            conv = PatchConv(width, size=5, stride=2, padding=1, library_forward=self.library_forward,
+            conv = PatchConv(width, size=5, stride=2, padding=1, conv=self.conv,
                              name=f"Conv_{i}")
             x = nn.relu(conv(x))
         return x.reshape(*batch, -1)

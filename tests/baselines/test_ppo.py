@@ -259,14 +259,14 @@ def test_letter_cnn_matches_the_library_convolution():
     np.testing.assert_allclose(out, reference(params, image), rtol=1e-5, atol=1e-6)
 
 
-@pytest.mark.parametrize("library_forward", [False, True])
-def test_image_cnn_matches_the_library_convolution_per_seed_in_value_and_gradient(library_forward):
+@pytest.mark.parametrize("conv", ["patch", "library_forward", "auto"])
+def test_image_cnn_matches_the_library_convolution_per_seed_in_value_and_gradient(conv):
     import flax.linen as nn
 
     from specrl_jax.baselines.encoders import ImageCNN
 
     images = jax.random.randint(jax.random.key(0), (2, 3, 64, 64, 3), 0, 256).astype(jnp.uint8)
-    cnn = ImageCNN(library_forward=library_forward)
+    cnn = ImageCNN(conv=conv)
     params = jax.vmap(lambda k: cnn.init(k, images[0])["params"])(jax.random.split(jax.random.key(1), 2))
 
     def reference(p, x):
@@ -288,6 +288,36 @@ def test_image_cnn_matches_the_library_convolution_per_seed_in_value_and_gradien
     np.testing.assert_allclose(value, ref_value, rtol=1e-4)
     for a, b in zip(jax.tree.leaves(grad), jax.tree.leaves(ref_grad)):
         np.testing.assert_allclose(a, b, rtol=1e-3, atol=1e-4 * float(jnp.max(jnp.abs(b))))
+
+
+def test_image_cnn_auto_takes_the_library_gradient_for_one_set_of_parameters_off_the_cpu():
+    """`ImageCNN(conv="auto")` lowered for a GPU: the library convolution forward and backward
+    for one set of parameters (seeds learning in turn: `lax.map`), the patch matmul for the
+    gradient of a batch of them (`vmap`); on the CPU the patch matmul throughout."""
+    from specrl_jax.baselines.encoders import ImageCNN
+
+    cnn = ImageCNN()
+    images = jnp.zeros((2, 64, 64, 3), jnp.uint8)
+    params = cnn.init(jax.random.key(0), images)
+    grad = jax.grad(lambda p, x: jnp.sum(jnp.sin(cnn.apply(p, x))))
+    seeds = jax.tree.map(lambda a: jnp.stack([a, a]), (params, images))
+    programs = {"one": (grad, (params, images)),
+                "in_turn": (lambda p, x: jax.lax.map(lambda a: grad(*a), (p, x)), seeds),
+                "side_by_side": (jax.vmap(grad), seeds)}
+
+    def ops(name, platform):
+        fn, args = programs[name]
+        text = jax.jit(fn).trace(*args).lower(lowering_platforms=(platform,)).as_text()
+        return text.count("stablehlo.convolution"), text.count("stablehlo.dot_general")
+
+    layers = len(cnn.channels)
+    for name in programs:
+        assert ops(name, "cpu")[0] == 0
+    for name in ("one", "in_turn"):
+        convolutions, matmuls = ops(name, "cuda")
+        assert convolutions > 2 * layers and matmuls == 0
+    # the forward pass a convolution per layer, the gradient the patch matmuls
+    assert ops("side_by_side", "cuda") == (layers, 2 * layers - 1)
 
 
 def test_resume_gives_identical_continuation(tmp_path, monkeypatch):

@@ -9,13 +9,14 @@ reference implementations do.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from functools import partial
+from functools import cache, partial
 from typing import NamedTuple
 
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
 from flax import struct
+from jax.custom_batching import custom_vmap
 
 Activation = Callable[[jax.Array], jax.Array]
 ACTIVATIONS: dict[str, Activation] = {
@@ -67,28 +68,34 @@ class PatchConv(nn.Module):
     are `nn.Conv`'s (`kernel [size, size, C, features]` LeCun-normal, `bias` zeros), so
     checkpoints of either load into the other.
 
-    `library_forward`: the forward pass is the library convolution, which holds only the layer's
-    input for the backward pass; that pass rebuilds the patch matrix and is the patch matmul's.
-    Under `vmap` on a GPU the library's forward is the faster (the paper's image CNN, 5 seeds x
-    2,048 images of 64 x 64 on an H200: 6.0 ms against 13.9 ms; `benchmarks/lab/image_conv.py`),
-    and a rollout or an evaluation runs the forward pass alone; on XLA:CPU it is the slower. In
-    GenZ-LTL's image training loop the faster rollout and the slower update epochs cancel
-    (results.md, Training speed), so it is off by default.
+    `conv` picks how it runs, all with the same parameters and the same function:
+    - "patch": the patch matmul, forward and backward.
+    - "library_forward": the library convolution's forward, which holds only the layer's input
+      for the backward pass; that pass rebuilds the patch matrix and is the patch matmul's. Under
+      `vmap` on a GPU the library's forward is the faster (the paper's image CNN, 5 seeds x 2,048
+      images of 64 x 64 on an H200: 6.0 ms against 13.9 ms; `benchmarks/lab/image_conv.py`); in
+      GenZ-LTL's side-by-side image training loop the faster rollout and the slower update epochs
+      cancel (results.md, Training speed).
+    - "auto" (`auto_conv`): the library convolution off the CPU, forward and backward, except for
+      the gradient of a batch of parameters (`vmap` over seeds), which is the patch matmul's; the
+      patch matmul on XLA:CPU. Seeds that learn in turn (`PPOConfig.learn_seeds_in_turn`) take
+      the library's gradient, seeds side by side the patch matmul's.
     """
 
     features: int
     size: int = 2
     stride: int = 1
     padding: int = 0
-    library_forward: bool = False
+    conv: str = "patch"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         k = self.size
+        if self.conv not in CONVOLUTIONS:
+            raise ValueError(f"conv={self.conv!r}; choose one of {', '.join(CONVOLUTIONS)}")
         kernel = self.param("kernel", nn.initializers.lecun_normal(), (k, k, x.shape[-1], self.features))
         bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
-        conv = library_forward_conv if self.library_forward else patch_conv
-        return conv(x, kernel, self.stride, self.padding) + bias
+        return CONVOLUTIONS[self.conv](x, kernel, self.stride, self.padding) + bias
 
 
 def patch_conv(x: jax.Array, kernel: jax.Array, stride: int, padding: int) -> jax.Array:
@@ -115,11 +122,67 @@ def _library_forward(x, kernel, stride, padding):
     return library_conv(x, kernel, stride, padding), (x, kernel)
 
 
+def _patch_vjp(stride: int, padding: int) -> Callable:
+    return lambda x, kernel, g: jax.vjp(partial(patch_conv, stride=stride, padding=padding),
+                                        x, kernel)[1](g)
+
+
 def _patch_backward(stride, padding, saved, g):
-    return jax.vjp(partial(patch_conv, stride=stride, padding=padding), *saved)[1](g)
+    return _patch_vjp(stride, padding)(*saved, g)
 
 
 library_forward_conv.defvjp(_library_forward, _patch_backward)
+
+
+def _library_vjp(stride: int, padding: int) -> Callable:
+    return lambda x, kernel, g: jax.vjp(partial(library_conv, stride=stride, padding=padding),
+                                        x, kernel)[1](g)
+
+
+def _forward_here(x: jax.Array, kernel: jax.Array, stride: int, padding: int) -> jax.Array:
+    return jax.lax.platform_dependent(
+        x, kernel, cpu=partial(patch_conv, stride=stride, padding=padding),
+        default=partial(library_conv, stride=stride, padding=padding))
+
+
+@cache
+def _auto_gradient(stride: int, padding: int) -> Callable:
+    """`(x, kernel, g) -> (dx, dkernel)`: the library's on one set of parameters off the CPU,
+    the patch matmul's on the CPU and under `vmap` (a batch of parameters)."""
+    patch_vjp, library_vjp = _patch_vjp(stride, padding), _library_vjp(stride, padding)
+
+    @custom_vmap
+    def gradient(x, kernel, g):
+        return jax.lax.platform_dependent(x, kernel, g, cpu=patch_vjp, default=library_vjp)
+
+    @gradient.def_vmap
+    def batched(axis_size, in_batched, x, kernel, g):
+        args = [a if b else jnp.broadcast_to(a, (axis_size, *a.shape))
+                for a, b in zip((x, kernel, g), in_batched)]
+        return jax.vmap(patch_vjp)(*args), (True, True)
+
+    return gradient
+
+
+@partial(jax.custom_vjp, nondiff_argnums=(2, 3))
+def auto_conv(x: jax.Array, kernel: jax.Array, stride: int, padding: int) -> jax.Array:
+    """`patch_conv`'s convolution, run where each part is fast (`PatchConv`'s "auto")."""
+    return _forward_here(x, kernel, stride, padding)
+
+
+def _auto_forward(x, kernel, stride, padding):
+    return _forward_here(x, kernel, stride, padding), (x, kernel)
+
+
+def _auto_backward(stride, padding, saved, g):
+    return _auto_gradient(stride, padding)(*saved, g)
+
+
+auto_conv.defvjp(_auto_forward, _auto_backward)
+
+#: `PatchConv.conv`'s choices
+CONVOLUTIONS: dict[str, Callable] = {"patch": patch_conv, "library_forward": library_forward_conv,
+                                     "auto": auto_conv}
 
 
 def patch_matrix(x: jax.Array, size: int, stride: int, padding: int) -> jax.Array:
