@@ -80,6 +80,7 @@ class PatchConv(nn.Module):
       the gradient of a batch of parameters (`vmap` over seeds), which is the patch matmul's; the
       patch matmul on XLA:CPU. Seeds that learn in turn (`PPOConfig.learn_seeds_in_turn`) take
       the library's gradient, seeds side by side the patch matmul's.
+    "library_forward" and "auto" differentiate in reverse mode only, once (`jax.custom_vjp`).
     """
 
     features: int
