@@ -100,32 +100,46 @@ def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: 
     inverse = spd_inverse(mass) if inverse is None else inverse
     speed_to_accel = lambda speed: (speed - qvel) / h - free_accel  # extra acceleration needed
     want = speed_to_accel(MOTOR_RATE * (target - qpos))
-    tau = jnp.clip(mass @ want, -force_limit, force_limit)
-    diag = jnp.diagonal(inverse)
-    num = tau.shape[0]
-
+    num = want.shape[0]
     if joint_range is None:  # an infinite range: the limit rows never act
         joint_range = jnp.stack([jnp.full(num, -jnp.inf), jnp.full(num, jnp.inf)], axis=1)
     top = speed_to_accel((joint_range[:, 1] - qpos) / h)
     bottom = speed_to_accel((joint_range[:, 0] - qpos) / h)
 
-    def sweep(_, carry):
-        tau, down, up = carry  # motor torques, upper-limit forces <= 0, lower-limit forces >= 0
-        for i in range(num):  # rows in order, as Bullet's sequential impulses
-            residual = want[i] - inverse[i] @ (tau + down + up)
-            tau = tau.at[i].set(jnp.clip(tau[i] + residual / diag[i], -force_limit[i],
-                                         force_limit[i]))
-        for i in range(num):
-            accel = inverse[i] @ (tau + down + up)
-            new_down = jnp.minimum(down[i] + (top[i] - accel) / diag[i], 0.0)
-            accel = accel + (new_down - down[i]) * diag[i]
-            down = down.at[i].set(new_down)
-            up = up.at[i].set(jnp.maximum(up[i] + (bottom[i] - accel) / diag[i], 0.0))
-        return tau, down, up
+    # The sweeps work on scalars (one per joint), not on vectors updated in place: under `vmap`
+    # every operation is then elementwise over the batch and a sweep fuses into one kernel,
+    # where in-place row updates and row products launch a scatter and a reduction per row.
+    rows = range(num)
+    inv = [[inverse[i, j] for j in rows] for i in rows]
+    want_, top_, bottom_ = ([v[i] for i in rows] for v in (want, top, bottom))
+    limit = [force_limit[i] for i in rows]
 
-    zeros = jnp.zeros_like(tau)
-    tau, down, up = jax.lax.fori_loop(0, sweeps, sweep, (tau, zeros, zeros))
-    return tau + down + up
+    def accel(i: int, force: list) -> jax.Array:  # row i of inverse @ force
+        total = inv[i][0] * force[0]
+        for j in rows[1:]:
+            total = total + inv[i][j] * force[j]
+        return total
+
+    def sweep(_, carry):
+        tau, down, up = (list(part) for part in carry)  # motor, upper-limit <= 0, lower-limit >= 0
+        net = [tau[j] + down[j] + up[j] for j in rows]
+        for i in rows:  # rows in order, as Bullet's sequential impulses
+            residual = want_[i] - accel(i, net)
+            tau[i] = jnp.clip(tau[i] + residual / inv[i][i], -limit[i], limit[i])
+            net[i] = tau[i] + down[i] + up[i]
+        for i in rows:
+            a = accel(i, net)
+            new_down = jnp.minimum(down[i] + (top_[i] - a) / inv[i][i], 0.0)
+            a = a + (new_down - down[i]) * inv[i][i]
+            down[i] = new_down
+            up[i] = jnp.maximum(up[i] + (bottom_[i] - a) / inv[i][i], 0.0)
+            net[i] = tau[i] + down[i] + up[i]
+        return tuple(tau), tuple(down), tuple(up)
+
+    start = jnp.clip(mass @ want, -force_limit, force_limit)
+    zeros = (jnp.zeros((), start.dtype),) * num
+    tau, down, up = jax.lax.fori_loop(0, sweeps, sweep, (tuple(start[i] for i in rows), zeros, zeros))
+    return jnp.stack(tau) + jnp.stack(down) + jnp.stack(up)
 
 
 class Physics:
