@@ -36,7 +36,8 @@ SCRIPTS = {
     "lab/persistence_avoids.py": ["--episodes", "1", "--horizon", "5"],
     "lab/arm_solver_load.py": ["--policy", "random", "--suites", "arm_grippers/finite/ind",
                                "--episodes", "1", "--steps", "2"],
-    "lab/image_conv.py": ["--seeds", "2", "--cases", "64:2", "--repeats", "1"],
+    "lab/image_conv.py": ["--seeds", "2", "--cases", "64:2", "--repeats", "1", "--in-turn"],
+    "lab/arm_motor_solve.py": ["--batches", "8", "--repeats", "1"],
     "bench_speed.py": ["--part", "gymnasium", "--seeds", "1", "--episodes", "1",
                        "--num-envs", "4"],
 }
