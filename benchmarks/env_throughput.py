@@ -16,7 +16,7 @@ Resets (`--resets`):
   off    no auto-reset (the raw world step; world loop only).
 
 `--physics {auto,jax,warp}` and `--solver KEY=VALUE ...` set a Zone world's physics backend and
-solver fields. `--determinism` also runs each measured rollout twice from one state and key and
+solver fields; `--env-option KEY=VALUE` any world's option (e.g. the arm's `motor_solve=pallas`). `--determinism` also runs each measured rollout twice from one state and key and
 reports how many state elements differ (MuJoCo Warp's atomic adds on a GPU may differ in the last
 bits). Each figure is printed as one JSON row (`harness.row`) and appended to `--out` if given.
 
@@ -50,6 +50,7 @@ RESETS = ("exact", "bank", "off")
 
 def make_env(env_id: str, args: argparse.Namespace) -> tuple[Any, Any]:
     overrides = {"physics": args.physics} if args.physics else {}
+    overrides.update(args.env_option)
     env, params = specrl_jax.make(env_id, **overrides)
     if args.solver:
         solver = dataclasses.replace(env.config.solver, **args.solver)
@@ -74,7 +75,7 @@ def label(env_id: str, env: Any, loop: str, reset: str, args: argparse.Namespace
     backend = getattr(getattr(env, "physics", None), "backend", None)  # Zone worlds
     if backend:
         settings.append(f"physics {backend}")
-    settings += [f"{k}={v}" for k, v in args.solver.items()]
+    settings += [f"{k}={v}" for k, v in (*args.solver.items(), *args.env_option.items())]
     what = {"exact": "exact auto-reset", "bank": f"bank auto-reset ({args.bank_size:,} layouts)",
             "off": "raw step (no reset)"}[reset]
     return ", ".join([env_id, f"{loop} loop", what, *settings])
@@ -123,10 +124,10 @@ def measure(env_id: str, loop: str, reset: str, num_envs: int, args: argparse.Na
                                  **diff), args.out)
 
 
-def _override(pair: str, parser: argparse.ArgumentParser) -> tuple[str, Any]:
+def _override(pair: str, parser: argparse.ArgumentParser, flag: str) -> tuple[str, Any]:
     key, sep, value = pair.partition("=")
     if not sep or not key:
-        parser.error(f"--solver takes KEY=VALUE pairs, got {pair!r}")
+        parser.error(f"{flag} takes KEY=VALUE pairs, got {pair!r}")
     if value in ("True", "False"):
         return key, value == "True"
     for kind in (int, float):
@@ -150,6 +151,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--prng", default="threefry2x32",
                         choices=["threefry2x32", "rbg", "unsafe_rbg"])
+    parser.add_argument("--env-option", action="append", default=[],
+                        metavar="KEY=VALUE", help="an option of the world, e.g. motor_solve=pallas")
     parser.add_argument("--physics", choices=["auto", "jax", "warp"], default=None,
                         help="Zone worlds' physics backend (default: the env's own, auto)")
     parser.add_argument("--solver", nargs="*", default=[], metavar="KEY=VALUE",
@@ -158,7 +161,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="also report whether each rollout repeats bit for bit")
     parser.add_argument("--out", default=None, help="append the JSON rows to this file")
     args = parser.parse_args(argv)
-    args.solver = dict(_override(pair, parser) for pair in args.solver)
+    args.solver = dict(_override(pair, parser, "--solver") for pair in args.solver)
+    args.env_option = dict(_override(pair, parser, "--env-option") for pair in args.env_option)
     known = specrl_jax.list_envs()
     unknown = [e for e in args.envs if e not in known]
     if unknown:

@@ -133,6 +133,9 @@ def test_end_effector_ids_build_with_a_3d_action():
         specrl_jax.make("PandaLTLReach0-v0", control="joints")
     with pytest.raises(ValueError, match="control must be one of"):
         specrl_jax.envs.arm.ArmConfig(control="torque")
+    with pytest.raises(ValueError, match="motor_solve must be one of .*'pallas'"):
+        specrl_jax.envs.arm.ArmConfig(motor_solve="triton")
+    assert specrl_jax.make("PandaLTLReach0Joints-v0", motor_solve="pallas")[0].physics.motor_solve == "pallas"
 
 
 def test_end_effector_step_and_gymnasium_bridge():

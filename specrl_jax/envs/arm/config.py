@@ -15,6 +15,8 @@ BOX_HIGH = (0.2, 0.3)
 BOX_HEIGHT = 0.5
 #: action kinds: joint-target deltas (the `...Joints` IDs) or end-effector displacements
 CONTROLS = ("joints", "ee")
+#: how the physics runs its motor solve (`physics.motor_torque`'s `solve`)
+MOTOR_SOLVES = ("xla", "pallas", "pallas_interpret")
 
 
 @dataclass(frozen=True)
@@ -43,6 +45,9 @@ class ArmConfig:
         max_rounds: loop iterations before the sampler gives up (returns the neutral-arm
             layout of its last candidate; `layout_ok` in the state says so).
         table_contacts: whether the arm collides with the table and floor (the original's).
+        motor_solve: how the physics runs its motor solve each substep (speed only):
+            "xla" (jnp operations), "pallas" (one Pallas kernel per arm, a GPU) or
+            "pallas_interpret" (that kernel in Pallas' interpreter).
     """
 
     mode: int = 0
@@ -59,12 +64,15 @@ class ArmConfig:
     continuation_slots: int = 8
     max_rounds: int = 400
     table_contacts: bool = True
+    motor_solve: str = "xla"
 
     def __post_init__(self) -> None:
         if self.mode not in (0, 1) or isinstance(self.mode, bool):
             raise ValueError(f"mode must be 0 (grippers-only) or 1 (grippers+arm), got {self.mode!r}")
         if self.control not in CONTROLS:
             raise ValueError(f"control must be one of {CONTROLS}, got {self.control!r}")
+        if self.motor_solve not in MOTOR_SOLVES:
+            raise ValueError(f"motor_solve must be one of {MOTOR_SOLVES}, got {self.motor_solve!r}")
         colors = tuple(self.colors) if isinstance(self.colors, (list, tuple)) else ()
         if not colors or len(set(colors)) != len(colors) or any(c not in COLOR_NAMES for c in colors):
             raise ValueError(f"colors must be distinct names from {COLOR_NAMES}; got {self.colors!r}")

@@ -75,7 +75,7 @@ class ArmEnv(Env):
         self.config = config
         self.propositions = config.propositions
         self.mj_model = arm_model.load_model(config.table_contacts)
-        self.physics = Physics(self.mj_model, arm_model.FORCE_LIMITS)
+        self.physics = Physics(self.mj_model, arm_model.FORCE_LIMITS, motor_solve=config.motor_solve)
         self.ik = EndEffectorIK(self.mj_model)
         self._link_ids = arm_model.body_ids(self.mj_model)
         self._grasp_id = int(self.mj_model.site(arm_model.GRASP_SITE).id)

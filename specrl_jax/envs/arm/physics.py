@@ -29,6 +29,7 @@ from flax import struct
 
 from specrl_jax.envs import compiled
 from specrl_jax.envs.arm.collision import Collision, ContactReach
+from specrl_jax.envs.arm.config import MOTOR_SOLVES
 from specrl_jax.envs.arm.kinematics import ChainKinematics
 from specrl_jax.envs.compaction import where_needed
 from specrl_jax.envs.zone import small_linalg
@@ -79,7 +80,7 @@ def spd_inverse(mass: jax.Array) -> jax.Array:
 def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: jax.Array,
                  target: jax.Array, force_limit: jax.Array, h: float,
                  sweeps: int = PGS_SWEEPS, inverse: jax.Array | None = None,
-                 joint_range: jax.Array | None = None) -> jax.Array:
+                 joint_range: jax.Array | None = None, solve: str = "xla") -> jax.Array:
     """Joint forces of PyBullet's velocity-level motor, and of its joint limits when
     `joint_range` is given, float32[N] (N m).
 
@@ -91,12 +92,17 @@ def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: 
         h: the substep, s.
         inverse: float[N, N] the inverse of `mass`, if the caller has it.
         joint_range: float[N, 2] lower and upper joint limits, rad (None: unlimited).
+        solve: how the Gauss-Seidel sweeps run (`MOTOR_SOLVES`): "xla" as jnp operations,
+            "pallas" as one Pallas kernel per arm (a GPU), "pallas_interpret" that kernel in
+            Pallas' interpreter (tests on a CPU). The same arithmetic.
 
     Returns the motor torques `tau`, `|tau_i| <= force_limit_i`, such that each unsaturated joint
     reaches `v* = MOTOR_RATE (target - q)` after the substep (given the saturated ones), plus the
     limit forces (a joint's lower limit pushes up, its upper limit down, each only as much as
     keeps `q + h v` within the range; beyond it, back to it in one substep).
     """
+    if solve not in MOTOR_SOLVES:
+        raise ValueError(f"solve={solve!r}; choose one of {', '.join(MOTOR_SOLVES)}")
     inverse = spd_inverse(mass) if inverse is None else inverse
     speed_to_accel = lambda speed: (speed - qvel) / h - free_accel  # extra acceleration needed
     want = speed_to_accel(MOTOR_RATE * (target - qpos))
@@ -105,14 +111,26 @@ def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: 
         joint_range = jnp.stack([jnp.full(num, -jnp.inf), jnp.full(num, jnp.inf)], axis=1)
     top = speed_to_accel((joint_range[:, 1] - qpos) / h)
     bottom = speed_to_accel((joint_range[:, 0] - qpos) / h)
+    start = jnp.clip(mass @ want, -force_limit, force_limit)
+    rows = (want, top, bottom, jnp.asarray(force_limit, want.dtype), start)
+    if solve == "xla":
+        scalars = lambda v: [v[i] for i in range(num)]
+        inv = [scalars(row) for row in scalars(inverse)]
+        tau, down, up = _gauss_seidel(inv, *map(scalars, rows), sweeps)
+        return jnp.stack(tau) + jnp.stack(down) + jnp.stack(up)
+    return _gauss_seidel_kernel(inverse, *rows, sweeps, interpret=solve == "pallas_interpret")
 
-    # The sweeps work on scalars (one per joint), not on vectors updated in place: under `vmap`
-    # every operation is then elementwise over the batch and a sweep fuses into one kernel,
-    # where in-place row updates and row products launch a scatter and a reduction per row.
-    rows = range(num)
-    inv = [[inverse[i, j] for j in rows] for i in rows]
-    want_, top_, bottom_ = ([v[i] for i in rows] for v in (want, top, bottom))
-    limit = [force_limit[i] for i in rows]
+
+def _gauss_seidel(inv: list, want: list, top: list, bottom: list, limit: list, start: list,
+                  sweeps: int) -> tuple[tuple, ...]:
+    """(motor, upper-limit, lower-limit) forces, N scalars each, after `sweeps` projected
+    Gauss-Seidel sweeps from the motor torques `start`: `motor_torque`'s rows as lists of
+    scalars (`inv` the inverse mass matrix's N x N).
+
+    The sweeps work on scalars (one per joint), not on vectors updated in place: under `vmap`
+    every operation is then elementwise over the batch and fuses with its neighbours, where
+    in-place row updates and row products launch a scatter and a reduction per row."""
+    rows = range(len(start))
 
     def accel(i: int, force: list) -> jax.Array:  # row i of inverse @ force
         total = inv[i][0] * force[0]
@@ -124,22 +142,56 @@ def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: 
         tau, down, up = (list(part) for part in carry)  # motor, upper-limit <= 0, lower-limit >= 0
         net = [tau[j] + down[j] + up[j] for j in rows]
         for i in rows:  # rows in order, as Bullet's sequential impulses
-            residual = want_[i] - accel(i, net)
+            residual = want[i] - accel(i, net)
             tau[i] = jnp.clip(tau[i] + residual / inv[i][i], -limit[i], limit[i])
             net[i] = tau[i] + down[i] + up[i]
         for i in rows:
             a = accel(i, net)
-            new_down = jnp.minimum(down[i] + (top_[i] - a) / inv[i][i], 0.0)
+            new_down = jnp.minimum(down[i] + (top[i] - a) / inv[i][i], 0.0)
             a = a + (new_down - down[i]) * inv[i][i]
             down[i] = new_down
-            up[i] = jnp.maximum(up[i] + (bottom_[i] - a) / inv[i][i], 0.0)
+            up[i] = jnp.maximum(up[i] + (bottom[i] - a) / inv[i][i], 0.0)
             net[i] = tau[i] + down[i] + up[i]
         return tuple(tau), tuple(down), tuple(up)
 
-    start = jnp.clip(mass @ want, -force_limit, force_limit)
-    zeros = (jnp.zeros((), start.dtype),) * num
-    tau, down, up = jax.lax.fori_loop(0, sweeps, sweep, (tuple(start[i] for i in rows), zeros, zeros))
-    return jnp.stack(tau) + jnp.stack(down) + jnp.stack(up)
+    zeros = (jnp.zeros((), inv[0][0].dtype),) * len(rows)
+    return jax.lax.fori_loop(0, sweeps, sweep, (tuple(start), zeros, zeros))
+
+
+def _gauss_seidel_kernel(inverse, want, top, bottom, limit, start, sweeps: int,
+                         interpret: bool) -> jax.Array:
+    """`_gauss_seidel` as one Pallas (Triton) kernel per arm: the arm's rows packed in a table
+    of a power-of-two length, read as scalars, every sweep in the kernel's registers."""
+    from jax.experimental import pallas as pl
+    from jax.experimental.pallas import triton
+
+    num = start.shape[0]
+    table = jnp.concatenate([inverse.reshape(-1), want, top, bottom, limit, start])
+    size = 1 << int(np.ceil(np.log2(table.shape[0])))  # Triton blocks are powers of two
+    table = jnp.pad(table, (0, size - table.shape[0]))
+    width = 1 << int(np.ceil(np.log2(num)))
+
+    def kernel(table_ref, out_ref):
+        read = lambda offset: [table_ref[offset + i] for i in range(num)]
+        inv = [read(i * num) for i in range(num)]
+        base = num * num
+        rows = (read(base + k * num) for k in range(5))  # want, top, bottom, limit, start
+        tau, down, up = _gauss_seidel(inv, *rows, sweeps)
+        lanes = jax.lax.broadcasted_iota(jnp.int32, (width,), 0)
+        out = jnp.zeros((width,), table_ref.dtype)
+        for i in range(num):
+            out = jnp.where(lanes == i, tau[i] + down[i] + up[i], out)
+        out_ref[...] = out
+
+    out = pl.pallas_call(
+        kernel,
+        out_shape=jax.ShapeDtypeStruct((width,), table.dtype),
+        # no grid of its own: `vmap` makes the arms the grid, the last (x) axis taking the
+        # innermost batch, which may exceed CUDA's 65,535 on the y and z axes
+        interpret=interpret,
+        compiler_params=None if interpret else triton.CompilerParams(num_warps=1, num_stages=1),
+    )(table)
+    return out[:num]
 
 
 class Physics:
@@ -154,12 +206,16 @@ class Physics:
     collision and solve take the `solve_pairs` contact pairs of least distance bound (the others
     are beyond their margin, their rows zero); the arms with more pairs within reach are
     gathered apart (a share `OVERFLOW_CAPACITY` of the batch at a time) and run over every pair
-    (`solve_pairs=None`: every arm over every pair).
+    (`solve_pairs=None`: every arm over every pair). `motor_solve`: how the motor solve runs
+    (`motor_torque`'s `solve`).
     """
 
     def __init__(self, model: mujoco.MjModel, force_limit: np.ndarray, substeps: int = SUBSTEPS,
                  solve_capacities: tuple[float, ...] | None = SOLVE_CAPACITIES,
-                 solve_pairs: int | None = SOLVE_PAIRS):
+                 solve_pairs: int | None = SOLVE_PAIRS, motor_solve: str = "xla"):
+        if motor_solve not in MOTOR_SOLVES:
+            raise ValueError(f"motor_solve={motor_solve!r}; choose one of {', '.join(MOTOR_SOLVES)}")
+        self.motor_solve = motor_solve
         self.mj_model = model
         self._digest = compiled.model_digest(model)
         self.model = mjx.put_model(model, impl="jax")
@@ -272,7 +328,7 @@ class Physics:
         h = float(self.mj_model.opt.timestep)
         tau = motor_torque(mass, free_accel, data.qvel, data.qpos, target,
                            jnp.asarray(self.force_limit), h, inverse=inverse,
-                           joint_range=jnp.asarray(self.joint_range))
+                           joint_range=jnp.asarray(self.joint_range), solve=self.motor_solve)
         return mjx.fwd_acceleration(m, mjx.fwd_actuation(m, data.replace(qfrc_applied=tau)))
 
     def substep(self, data: mjx.Data, target: jax.Array, qfrc_constraint: jax.Array) -> mjx.Data:
@@ -294,7 +350,7 @@ class Physics:
     def _trace_key(self) -> tuple:
         """All that a trace of `step` reads besides its arguments."""
         return (self._digest, self.force_limit.tobytes(), self.substeps, self.solve_capacities,
-                self.solve_pairs)
+                self.solve_pairs, self.motor_solve)
 
     def _step_traced(self, state: PhysicsState, target: jax.Array) -> PhysicsState:
         def substep(_, carry: PhysicsState) -> PhysicsState:
@@ -317,5 +373,5 @@ def _shared_step(
     return physics.value._step_traced(state, target)
 
 
-__all__ = ["MOTOR_RATE", "SUBSTEPS", "Physics", "PhysicsState", "motor_torque",
+__all__ = ["MOTOR_RATE", "MOTOR_SOLVES", "SUBSTEPS", "Physics", "PhysicsState", "motor_torque",
            "spd_inverse"]
