@@ -151,7 +151,7 @@ def test_end_effector_step_and_gymnasium_bridge():
     obs, info = env.reset(seed=0)
     np.testing.assert_allclose(obs["ego_state"][:3], [0.03844, 0, 0.1974], atol=1e-4)
     for _ in range(3):
-        obs, reward, terminated, truncated, info = env.step(np.array([1.0, 0, 0], np.float32))
+        obs, reward, terminated, truncated, _ = env.step(np.array([1.0, 0, 0], np.float32))
     assert reward == 0.0 and not terminated and not truncated
     moved = obs["ego_state"][:3] - np.array([0.03844, 0, 0.1974])
     # three steps of 5 cm asked; the IK gives about 3.5 cm of each along x (above), the motor
