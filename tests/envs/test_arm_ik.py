@@ -148,7 +148,7 @@ def test_end_effector_step_and_gymnasium_bridge():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         check_env(env.unwrapped)
-    obs, info = env.reset(seed=0)
+    obs, _ = env.reset(seed=0)
     np.testing.assert_allclose(obs["ego_state"][:3], [0.03844, 0, 0.1974], atol=1e-4)
     for _ in range(3):
         obs, reward, terminated, truncated, _ = env.step(np.array([1.0, 0, 0], np.float32))
