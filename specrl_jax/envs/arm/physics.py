@@ -112,7 +112,8 @@ def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: 
     top = speed_to_accel((joint_range[:, 1] - qpos) / h)
     bottom = speed_to_accel((joint_range[:, 0] - qpos) / h)
     start = jnp.clip(mass @ want, -force_limit, force_limit)
-    rows = (want, top, bottom, jnp.asarray(force_limit, want.dtype), start)
+    rows = tuple(jnp.asarray(row, want.dtype) for row in (want, top, bottom, force_limit, start))
+    inverse = jnp.asarray(inverse, want.dtype)
     if solve == "xla":
         scalars = lambda v: [v[i] for i in range(num)]
         inv = [scalars(row) for row in scalars(inverse)]
