@@ -38,6 +38,7 @@ SCRIPTS = {
                                "--episodes", "1", "--steps", "2"],
     "lab/image_conv.py": ["--seeds", "2", "--cases", "64:2", "--repeats", "1", "--in-turn"],
     "lab/arm_motor_solve.py": ["--batches", "8", "--repeats", "1"],
+    "lab/arm_grippers_alone.py": ["--episodes", "2", "--steps", "2", "--heights", "0.05"],
     "bench_speed.py": ["--part", "gymnasium", "--seeds", "1", "--episodes", "1",
                        "--num-envs", "4"],
 }
