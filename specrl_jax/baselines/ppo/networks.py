@@ -123,21 +123,17 @@ def _library_forward(x, kernel, stride, padding):
     return library_conv(x, kernel, stride, padding), (x, kernel)
 
 
-def _patch_vjp(stride: int, padding: int) -> Callable:
-    return lambda x, kernel, g: jax.vjp(partial(patch_conv, stride=stride, padding=padding),
+def _vjp(conv: Callable, stride: int, padding: int) -> Callable:
+    """`(x, kernel, g) -> (dx, dkernel)` of the convolution `conv`."""
+    return lambda x, kernel, g: jax.vjp(partial(conv, stride=stride, padding=padding),
                                         x, kernel)[1](g)
 
 
 def _patch_backward(stride, padding, saved, g):
-    return _patch_vjp(stride, padding)(*saved, g)
+    return _vjp(patch_conv, stride, padding)(*saved, g)
 
 
 library_forward_conv.defvjp(_library_forward, _patch_backward)
-
-
-def _library_vjp(stride: int, padding: int) -> Callable:
-    return lambda x, kernel, g: jax.vjp(partial(library_conv, stride=stride, padding=padding),
-                                        x, kernel)[1](g)
 
 
 def _forward_here(x: jax.Array, kernel: jax.Array, stride: int, padding: int) -> jax.Array:
@@ -150,7 +146,7 @@ def _forward_here(x: jax.Array, kernel: jax.Array, stride: int, padding: int) ->
 def _auto_gradient(stride: int, padding: int) -> Callable:
     """`(x, kernel, g) -> (dx, dkernel)`: the library's on one set of parameters off the CPU,
     the patch matmul's on the CPU and under `vmap` (a batch of parameters)."""
-    patch_vjp, library_vjp = _patch_vjp(stride, padding), _library_vjp(stride, padding)
+    patch_vjp, library_vjp = _vjp(patch_conv, stride, padding), _vjp(library_conv, stride, padding)
 
     @custom_vmap
     def gradient(x, kernel, g):
