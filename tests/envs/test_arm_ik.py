@@ -136,6 +136,7 @@ def test_end_effector_ids_build_with_a_3d_action():
     with pytest.raises(ValueError, match="motor_solve must be one of .*'pallas'"):
         specrl_jax.envs.arm.ArmConfig(motor_solve="triton")
     assert specrl_jax.make("PandaLTLReach0Joints-v0", motor_solve="pallas")[0].physics.motor_solve == "pallas"
+    assert specrl_jax.make("PandaLTLReach0Joints-v0")[0].physics.motor_solve == "auto"  # the kernel on a GPU
 
 
 def test_end_effector_step_and_gymnasium_bridge():

@@ -79,7 +79,8 @@ def test_motor_torque_solves_the_box_problem():
 def test_motor_solve_kernel_equals_the_jnp_sweeps_and_lowers_for_a_gpu():
     """The Pallas kernel of the motor solve (`solve="pallas"`, run here by Pallas' interpreter)
     gives the jnp sweeps' forces under `vmap`, joint limits active; for a GPU it lowers to one
-    Triton kernel (lowered on the CPU host; compiling it needs the GPU)."""
+    Triton kernel (lowered on the CPU host; compiling it needs the GPU); "auto" is the jnp
+    sweeps on a CPU."""
     rng = np.random.default_rng(1)
     a = rng.normal(size=(6, 7, 7))
     mass = a @ np.swapaxes(a, 1, 2) * 0.1 + 0.5 * np.eye(7)
@@ -92,12 +93,13 @@ def test_motor_solve_kernel_equals_the_jnp_sweeps_and_lowers_for_a_gpu():
         return jax.vmap(lambda *x: motor_torque(*x, limits, H, joint_range=joint_range, solve=solve))
 
     jnp_forces = np.asarray(jax.jit(solver("xla"))(*args))
+    np.testing.assert_array_equal(np.asarray(jax.jit(solver("auto"))(*args)), jnp_forces)  # a CPU
     kernel_forces = np.asarray(jax.jit(solver("pallas_interpret"))(*args))
     assert np.abs(jnp_forces).max() > 1e3  # limit forces pushing joints back into range
     np.testing.assert_allclose(kernel_forces, jnp_forces, rtol=1e-5, atol=1e-6 * np.abs(jnp_forces).max())
     text = jax.jit(solver("pallas")).trace(*args).lower(lowering_platforms=("cuda",)).as_text()
     assert text.count("xla.gpu.triton") == 1
-    with pytest.raises(ValueError, match="solve='cuda'; choose one of xla, pallas, pallas_interpret"):
+    with pytest.raises(ValueError, match="solve='cuda'; choose one of auto, xla, pallas, pallas_interpret"):
         motor_torque(*[x[0] for x in args], limits, H, solve="cuda")
 
 

@@ -16,7 +16,7 @@ BOX_HEIGHT = 0.5
 #: action kinds: joint-target deltas (the `...Joints` IDs) or end-effector displacements
 CONTROLS = ("joints", "ee")
 #: how the physics runs its motor solve (`physics.motor_torque`'s `solve`)
-MOTOR_SOLVES = ("xla", "pallas", "pallas_interpret")
+MOTOR_SOLVES = ("auto", "xla", "pallas", "pallas_interpret")
 
 
 @dataclass(frozen=True)
@@ -46,8 +46,9 @@ class ArmConfig:
             layout of its last candidate; `layout_ok` in the state says so).
         table_contacts: whether the arm collides with the table and floor (the original's).
         motor_solve: how the physics runs its motor solve each substep (speed only):
-            "xla" (jnp operations), "pallas" (one Pallas kernel per arm, a GPU) or
-            "pallas_interpret" (that kernel in Pallas' interpreter).
+            "auto" (the Pallas kernel on a GPU, jnp operations elsewhere), "xla" (jnp
+            operations), "pallas" (one Pallas kernel per arm, a GPU) or "pallas_interpret"
+            (that kernel in Pallas' interpreter).
     """
 
     mode: int = 0
@@ -64,7 +65,7 @@ class ArmConfig:
     continuation_slots: int = 8
     max_rounds: int = 400
     table_contacts: bool = True
-    motor_solve: str = "xla"
+    motor_solve: str = "auto"
 
     def __post_init__(self) -> None:
         if self.mode not in (0, 1) or isinstance(self.mode, bool):

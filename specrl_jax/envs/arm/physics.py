@@ -94,7 +94,8 @@ def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: 
         joint_range: float[N, 2] lower and upper joint limits, rad (None: unlimited).
         solve: how the Gauss-Seidel sweeps run (`MOTOR_SOLVES`): "xla" as jnp operations,
             "pallas" as one Pallas kernel per arm (a GPU), "pallas_interpret" that kernel in
-            Pallas' interpreter (tests on a CPU). The same arithmetic.
+            Pallas' interpreter (tests on a CPU), "auto" the kernel on a GPU and jnp
+            operations elsewhere. The same arithmetic.
 
     Returns the motor torques `tau`, `|tau_i| <= force_limit_i`, such that each unsaturated joint
     reaches `v* = MOTOR_RATE (target - q)` after the substep (given the saturated ones), plus the
@@ -103,6 +104,8 @@ def motor_torque(mass: jax.Array, free_accel: jax.Array, qvel: jax.Array, qpos: 
     """
     if solve not in MOTOR_SOLVES:
         raise ValueError(f"solve={solve!r}; choose one of {', '.join(MOTOR_SOLVES)}")
+    if solve == "auto":
+        solve = "pallas" if jax.default_backend() == "gpu" else "xla"
     inverse = spd_inverse(mass) if inverse is None else inverse
     speed_to_accel = lambda speed: (speed - qvel) / h - free_accel  # extra acceleration needed
     want = speed_to_accel(MOTOR_RATE * (target - qpos))
@@ -213,7 +216,7 @@ class Physics:
 
     def __init__(self, model: mujoco.MjModel, force_limit: np.ndarray, substeps: int = SUBSTEPS,
                  solve_capacities: tuple[float, ...] | None = SOLVE_CAPACITIES,
-                 solve_pairs: int | None = SOLVE_PAIRS, motor_solve: str = "xla"):
+                 solve_pairs: int | None = SOLVE_PAIRS, motor_solve: str = "auto"):
         if motor_solve not in MOTOR_SOLVES:
             raise ValueError(f"motor_solve={motor_solve!r}; choose one of {', '.join(MOTOR_SOLVES)}")
         self.motor_solve = motor_solve
