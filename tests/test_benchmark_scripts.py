@@ -39,6 +39,7 @@ SCRIPTS = {
     "lab/image_conv.py": ["--seeds", "2", "--cases", "64:2", "--repeats", "1", "--in-turn"],
     "lab/arm_motor_solve.py": ["--batches", "8", "--repeats", "1"],
     "lab/arm_grippers_alone.py": ["--episodes", "2", "--steps", "2", "--heights", "0.05"],
+    "lab/curriculum_pairs.py": ["--policy", "random", "--env", "LetterLTL0-v0", "--episodes", "1"],
     "bench_speed.py": ["--part", "gymnasium", "--seeds", "1", "--episodes", "1",
                        "--num-envs", "4"],
 }
