@@ -342,7 +342,9 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
         help="an option of the method (repeatable), e.g. for ltl2action sampler=curriculum, "
              "encoder=ENCODER.msgpack (a pretrained formula encoder), freeze_encoder=True, "
              "pretrain_steps=10000000; for rad sampler=rad; for deepltl stay_steps=300 (longer "
-             "reach-stay tasks); a wrong key lists the accepted ones"),
+             "reach-stay tasks), twins_apart=True (no avoid set holds its reach's same-object "
+             "proposition, the grippers-and-arm Arm's arm_c / grippers_c); a wrong key lists the "
+             "accepted ones"),
     *PROCESS_ARGS,
 )
 def train_command(args: argparse.Namespace) -> int:

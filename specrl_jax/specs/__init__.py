@@ -34,6 +34,7 @@ from specrl_jax.specs.sequences import (
     sample_genz_subgoal,
     sample_reach_stay,
     sample_task,
+    twin_matrix,
 )
 from specrl_jax.specs.sequences import sample_reach_avoid as sample_reach_avoid_sequence
 from specrl_jax.specs.suites import (
@@ -81,6 +82,7 @@ __all__ = [
     "suite",
     "suite_info",
     "suite_version",
+    "twin_matrix",
     "unregister_suite",
     "with_stay",
 ]

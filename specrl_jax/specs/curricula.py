@@ -202,11 +202,15 @@ class CurriculumSampler:
     of keys (shared state and current assignment); `update` advances the stage.
     """
 
-    def __init__(self, curriculum: Curriculum, num_props: int, max_len: int | None = None):
+    def __init__(self, curriculum: Curriculum, num_props: int, max_len: int | None = None,
+                 twins: np.ndarray | None = None):
         if not isinstance(num_props, int) or num_props < 2:
             raise ValueError(f"num_props must be an int >= 2, got {num_props!r}")
+        if twins is not None and np.shape(twins) != (num_props, num_props):
+            raise ValueError(f"twins must be bool[{num_props}, {num_props}], got {np.shape(twins)}")
         self.curriculum = curriculum
         self.num_props = num_props
+        self.twins = None if twins is None else np.asarray(twins, bool)
         self.max_len = curriculum.max_len if max_len is None else max_len
         if self.max_len < curriculum.max_len:
             raise ValueError(
@@ -248,7 +252,7 @@ class CurriculumSampler:
         if isinstance(s, AllReach):
             return seqs.all_reach_tasks(self.num_props, s.depth, self.max_len)
         if isinstance(s, AllReachAvoid):
-            return seqs.all_reach_avoid_tasks(self.num_props, s.depth, self.max_len)
+            return seqs.all_reach_avoid_tasks(self.num_props, s.depth, self.max_len, self.twins)
         if isinstance(s, GenZSubgoals):
             return seqs.genz_tasks(self.num_props, s.max_avoid)
         return None
@@ -312,9 +316,11 @@ class CurriculumSampler:
                 sampler.num_stay,
                 sampler.num_avoid,
                 self.max_len,
+                self.twins,
             )
         return seqs.reach_avoid_from_uniform(
-            u, self.num_props, sampler.depth, sampler.num_reach, sampler.num_avoid, self.max_len
+            u, self.num_props, sampler.depth, sampler.num_reach, sampler.num_avoid, self.max_len,
+            self.twins,
         )
 
     def sample_formulas(

@@ -11,12 +11,16 @@ runs under `jit` and `vmap`; sequences are padded with empty pairs to a static `
 
 Satisfiability is by construction under the "at most one proposition" alphabet: reach_i never
 meets avoid_i, consecutive reach sets are disjoint, and avoid_i excludes reach_{i-1}, so the walk
-r_1, r_2, ... (one reach proposition per step) completes every sequence.
+r_1, r_2, ... (one reach proposition per step) completes every sequence. Where a world's
+propositions can name one object (the grippers-and-arm Arm's `arm_c` and `grippers_c`: the hand
+touches a sphere the fingers reach), `twins` (bool[P, P], symmetric) keeps each reach's and
+previous reach's twins out of avoid_i as well.
 """
 
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -98,6 +102,25 @@ def _random_subset(scores: jax.Array, allowed: jax.Array, size: jax.Array) -> ja
     return allowed & (rank < size)
 
 
+def twin_matrix(propositions: Sequence[str], same_object: Sequence[tuple[str, str]]) -> np.ndarray:
+    """bool[P, P], symmetric: True where two of `propositions` name one object (`same_object`,
+    pairs of names, e.g. a world's `("arm_blue", "grippers_blue")`)."""
+    index = {p: i for i, p in enumerate(propositions)}
+    twins = np.zeros((len(propositions), len(propositions)), bool)
+    for a, b in same_object:
+        if a not in index or b not in index or a == b:
+            raise ValueError(f"same-object pair {(a, b)!r}: need two of {tuple(propositions)}")
+        twins[index[a], index[b]] = twins[index[b], index[a]] = True
+    return twins
+
+
+def _twins_of(props: jax.Array, twins: np.ndarray | None) -> jax.Array:
+    """bool[P]: the propositions that are a twin of some proposition in `props` (bool[P])."""
+    if twins is None:
+        return jnp.zeros_like(props)
+    return jnp.any(props[:, None] & jnp.asarray(twins, bool), axis=0)
+
+
 def _size(u: jax.Array, bounds: Range) -> jax.Array:
     """A uniform integer in the inclusive `bounds`, from a uniform u in [0, 1)."""
     return jnp.minimum(bounds[0] + jnp.floor(u * (bounds[1] - bounds[0] + 1)), bounds[1])
@@ -143,9 +166,11 @@ def sample_reach_avoid(
 
 
 def reach_avoid_from_uniform(
-    u: jax.Array, num_props: int, depth: int, num_reach: Range, num_avoid: Range, max_len: int
+    u: jax.Array, num_props: int, depth: int, num_reach: Range, num_avoid: Range, max_len: int,
+    twins: np.ndarray | None = None,
 ) -> ReachAvoidSequence:
-    """`sample_reach_avoid` driven by given uniforms u: float32[>= depth, 4, P] in [0, 1).
+    """`sample_reach_avoid` driven by given uniforms u: float32[>= depth, 4, P] in [0, 1);
+    `twins` (bool[P, P] or None) keeps the reach's and previous reach's twins out of avoid.
 
     Every sampler has such a form so that a caller (the curriculum) makes one PRNG draw for
     all of its branches: each threefry call costs seconds of XLA compile time on CPU.
@@ -154,7 +179,8 @@ def reach_avoid_from_uniform(
     reaches, avoids = [], []
     for i in range(depth):
         reach = _random_subset(u[i, 1], ~prev_reach, _size(u[i, 0, 0], num_reach))
-        avoid = _random_subset(u[i, 3], ~reach & ~prev_reach, _size(u[i, 2, 0], num_avoid))
+        kept_out = reach | prev_reach | _twins_of(reach | prev_reach, twins)
+        avoid = _random_subset(u[i, 3], ~kept_out, _size(u[i, 2, 0], num_avoid))
         reaches.append(reach)
         avoids.append(avoid)
         prev_reach = reach
@@ -188,17 +214,20 @@ def sample_reach_stay(
 
 
 def reach_stay_from_uniform(
-    u: jax.Array, num_props: int, num_stay: int, num_avoid: Range, max_len: int
+    u: jax.Array, num_props: int, num_stay: int, num_avoid: Range, max_len: int,
+    twins: np.ndarray | None = None,
 ) -> ReachAvoidSequence:
-    """`sample_reach_stay` driven by given uniforms u: float32[>= 3, P] in [0, 1)."""
+    """`sample_reach_stay` driven by given uniforms u: float32[>= 3, P] in [0, 1); `twins`
+    (bool[P, P] or None): the stay proposition's twins are avoided in neither pair."""
     prop = jnp.minimum(jnp.floor(u[0, 0] * num_props), num_props - 1).astype(jnp.int32)
     stay = jnp.arange(num_props) == prop
-    avoid_first = _random_subset(u[2], ~stay, _size(u[1, 0], num_avoid))
+    kept_out = stay | _twins_of(stay, twins)
+    avoid_first = _random_subset(u[2], ~kept_out, _size(u[1, 0], num_avoid))
     empty = jnp.zeros(num_props, bool)
     flags = jnp.zeros(max_len, bool)
     return ReachAvoidSequence(
         reach=_pad([empty, stay], max_len, (num_props,)),
-        avoid=_pad([avoid_first, ~stay], max_len, (num_props,)),
+        avoid=_pad([avoid_first, ~kept_out], max_len, (num_props,)),
         avoid_empty=flags.at[1].set(True),
         epsilon=flags.at[0].set(True),
         length=jnp.int32(2),
@@ -242,18 +271,24 @@ def all_reach_tasks(num_props: int, depth: int, max_len: int) -> ReachAvoidSeque
     return _stack_tasks(chains, num_props, max_len)
 
 
-def all_reach_avoid_tasks(num_props: int, depth: int, max_len: int) -> ReachAvoidSequence:
-    """Every chain of (reach p_i, avoid q_i) with q_i != p_i, p_i != p_{i-1}, q_i != p_{i-1}.
+def all_reach_avoid_tasks(num_props: int, depth: int, max_len: int,
+                          twins: np.ndarray | None = None) -> ReachAvoidSequence:
+    """Every chain of (reach p_i, avoid q_i) with q_i != p_i, p_i != p_{i-1}, q_i != p_{i-1}
+    (and, with `twins`, bool[P, P], q_i no twin of p_i or p_{i-1}).
 
     Returns:
-        A batch of K = P(P-1) * ((P-1)(P-2))^(depth-1) sequences (leading axis K).
+        A batch of K = P(P-1) * ((P-1)(P-2))^(depth-1) sequences (leading axis K; fewer with
+        twins).
     """
     _check_len(depth, max_len)
-    pairs = [(r, a) for r in range(num_props) for a in range(num_props) if a != r]
+    twin = np.zeros((num_props, num_props), bool) if twins is None else np.asarray(twins, bool)
+    pairs = [(r, a) for r in range(num_props) for a in range(num_props)
+             if a != r and not twin[r, a]]
     chains = [
         list(chain)
         for chain in itertools.product(pairs, repeat=depth)
-        if all(nxt[0] != prev[0] and nxt[1] != prev[0] for prev, nxt in itertools.pairwise(chain))
+        if all(nxt[0] != prev[0] and nxt[1] != prev[0] and not twin[prev[0], nxt[1]]
+               for prev, nxt in itertools.pairwise(chain))
     ]
     return _stack_tasks(chains, num_props, max_len)
 

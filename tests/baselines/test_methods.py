@@ -254,9 +254,21 @@ def test_deepltl_stay_steps_lengthen_the_reach_stay_tasks_it_trains_on():
     longer = deepltl.make_method(world, params, stay_steps=600).env.task.source.sampler.curriculum
     assert default.name == "deepltl/zone" and longer.name == "deepltl/zone+stay600"
     get_method("deepltl").check_options({"stay_steps": 600})
-    with pytest.raises(ValueError, match="accepted: stay_steps"):
+    with pytest.raises(ValueError, match="accepted: stay_steps, twins_apart"):
         get_method("deepltl").check_options({"stay": 600})
     with pytest.raises(ValueError, match="no reach-stay tasks"):
         deepltl.make_method(*specrl_jax.make("LetterLTL0-v0"), stay_steps=100)
     with pytest.raises(ValueError, match="must fit in the world's training episode of 1000"):
         deepltl.make_method(world, params, stay_steps=999)
+
+
+def test_deepltl_twins_apart_reads_the_worlds_same_object_propositions():
+    world, params = specrl_jax.make("PandaLTLReach1Joints-v0")
+    assert world.same_object[0] == ("arm_blue", "grippers_blue") and len(world.same_object) == 4
+    assert specrl_jax.make("PandaLTLReach0Joints-v0")[0].same_object == ()
+    sampler = deepltl.make_method(world, params, twins_apart=True).env.task.source.sampler
+    p = world.propositions
+    assert sampler.twins.sum() == 8 and sampler.twins[p.index("arm_green"), p.index("grippers_green")]
+    assert deepltl.make_method(world, params).env.task.source.sampler.twins is None
+    with pytest.raises(ValueError, match="declares no propositions that name one object"):
+        deepltl.make_method(*specrl_jax.make("PointLTL0-v0"), twins_apart=True)

@@ -203,3 +203,35 @@ def test_longer_stays_scale_every_reach_stay_task_and_nothing_else():
             specs.with_stay(cur.DEEPLTL_ZONE, bad)
     with pytest.raises(ValueError, match="no reach-stay tasks"):
         specs.with_stay(cur.DEEPLTL_LETTER, 100)
+
+
+def test_twins_stay_out_of_every_avoid_set():
+    """With same-object twins (props 0/1 and 2/3 name one sphere each, as the grippers-and-arm
+    Arm's `arm_c` / `grippers_c`), no avoid set of any stage holds a twin of its reach or of
+    the previous reach, the stay pair of a reach-stay task leaves the stay's twin allowed, and
+    the enumerated reach-avoid stages lose the twin pairs (12 tasks -> 8, 72 -> 16); without
+    twins the same draws do pair a reach with its twin."""
+    twins = specs.twin_matrix(["a0", "a1", "b0", "b1"], [("a0", "a1"), ("b0", "b1")])
+    assert (twins == twins.T).all() and twins.sum() == 4 and not twins.diagonal().any()
+    with pytest.raises(ValueError, match="need two of"):
+        specs.twin_matrix(["a0", "a1"], [("a0", "c")])
+    with pytest.raises(ValueError, match=r"twins must be bool\[4, 4\]"):
+        specs.CurriculumSampler(specs.curriculum("deepltl/zone"), 4, twins=np.eye(3, dtype=bool))
+    sampler = specs.CurriculumSampler(specs.curriculum("deepltl/zone"), 4, twins=twins)
+    assert [cur._num_tasks(t) for t in sampler.tasks if t is not None] == [4, 12, 8, 16]
+    sample = jax.jit(jax.vmap(sampler.sample, in_axes=(0, None)))
+    keys = jax.random.split(jax.random.key(3), BATCH)
+    for stage in range(len(sampler.curriculum.stages)):
+        s, _ = jax.device_get(sample(keys, sampler.init().replace(stage=jnp.int32(stage))))
+        reach, avoid = np.asarray(s.reach), np.asarray(s.avoid)
+        twin_of = (reach[..., :, None] & twins).any(-2)  # [B, L, P]
+        assert not (avoid & twin_of).any(), stage
+        assert not (avoid[:, 1:] & twin_of[:, :-1] & ~s.epsilon[:, :-1, None]).any(), stage
+        _check_rules(s)
+        if stage >= 4:  # mixtures with reach-stay tasks: the stay pair avoids the two others
+            stays = np.asarray(s.epsilon[:, 0])
+            assert stays.any() and (avoid[stays, 1].sum(-1) == 2).all()
+    plain = specs.CurriculumSampler(specs.curriculum("deepltl/zone"), 4)
+    s, _ = jax.device_get(jax.vmap(plain.sample, in_axes=(0, None))(
+        keys, plain.init().replace(stage=jnp.int32(5))))
+    assert (np.asarray(s.avoid) & (np.asarray(s.reach)[..., :, None] & twins).any(-2)).any()

@@ -34,7 +34,7 @@ from specrl_jax.baselines.spec import MethodSpec
 from specrl_jax.baselines.task_sources import curriculum_of
 from specrl_jax.baselines.train_env import TaskTrainEnv, pass_world_reward
 from specrl_jax.envs.wrappers import select_tree
-from specrl_jax.specs import CurriculumSampler, curriculum, with_stay
+from specrl_jax.specs import CurriculumSampler, curriculum, twin_matrix, with_stay
 from specrl_jax.tasks import SequenceSource, StatefulPolicy, TaskEnv
 
 PAD, EPSILON, NULL = 0, 1, 2  # token ids before the alphabet symbols
@@ -163,11 +163,13 @@ class DeepLTL(Method):
 
 
 def make_method(world: Any, params: Any, family: str | None = None,
-                stay_steps: int | None = None) -> DeepLTL:
+                stay_steps: int | None = None, twins_apart: bool = False) -> DeepLTL:
     """DeepLTL on any single-agent world, with the curriculum of `family` (letter or zone).
 
     `stay_steps`: the longest stay of the curriculum's reach-stay tasks, the others scaled with
-    it (`specs.with_stay`; None: the original's 30 and 60 steps on Zone)."""
+    it (`specs.with_stay`; None: the original's 30 and 60 steps on Zone). `twins_apart`: no
+    avoid set of the curriculum holds a proposition that names the same object as its reach
+    (the world's `same_object` pairs, e.g. the grippers-and-arm Arm's `arm_c` / `grippers_c`)."""
     family = families.name_of(world, family)
     network = network_for(world, family)
     alphabet = jnp.asarray(world.alphabet, bool)
@@ -179,7 +181,15 @@ def make_method(world: Any, params: Any, family: str | None = None,
         raise ValueError(f"stay_steps={stay_steps}: a stay of {stay_steps} + 1 steps must fit in "
                          f"the world's training episode of {params.max_steps} steps, after "
                          "reaching the zone; take fewer or a longer episode")
-    source = SequenceSource(CurriculumSampler(tasks, world.num_propositions), alphabet)
+    twins = None
+    if twins_apart:
+        same_object = getattr(world, "same_object", ())
+        if not same_object:
+            raise ValueError(f"twins_apart: {type(world).__name__} declares no propositions that "
+                             "name one object (`same_object`); the grippers-and-arm Arm does")
+        twins = twin_matrix(world.propositions, same_object)
+    sampler = CurriculumSampler(tasks, world.num_propositions, twins=twins)
+    source = SequenceSource(sampler, alphabet)
     kinds = dict(world.obs_kinds)
 
     def observe(obs, state):
@@ -315,5 +325,5 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: dict[str, st
 SPEC = MethodSpec(
     name="deepltl", title="DeepLTL", make_method=make_method, ppo_config=ppo_config,
     make_policy=make_policy, summarise=summarise, deterministic_infinite=lambda family: False,
-    options=("stay_steps",),
+    options=("stay_steps", "twins_apart"),
 )

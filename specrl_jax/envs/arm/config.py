@@ -118,5 +118,11 @@ class ArmConfig:
             return tuple(sorted(self.colors))
         return tuple(sorted(f"{part}_{c}" for part in ("arm", "grippers") for c in self.colors))
 
+    @property
+    def same_object(self) -> tuple[tuple[str, str], ...]:
+        """Propositions that name one sphere (mode 1: `arm_<c>` and `grippers_<c>`; the hand is
+        an arm link, so it usually touches what the fingers reach); none in mode 0."""
+        return () if self.mode == 0 else tuple((f"arm_{c}", f"grippers_{c}") for c in sorted(self.colors))
+
 
 __all__ = ["BENCHMARK_COLORS", "COLOR_NAMES", "CONTROLS", "ArmConfig"]

@@ -74,6 +74,7 @@ class ArmEnv(Env):
         layout_lib.check_feasible(config)  # raises if the keep-out leaves no layouts
         self.config = config
         self.propositions = config.propositions
+        self.same_object = config.same_object
         self.mj_model = arm_model.load_model(config.table_contacts)
         self.physics = Physics(self.mj_model, arm_model.FORCE_LIMITS, motor_solve=config.motor_solve)
         self.ik = EndEffectorIK(self.mj_model)
