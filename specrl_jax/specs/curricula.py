@@ -206,8 +206,11 @@ class CurriculumSampler:
                  twins: np.ndarray | None = None):
         if not isinstance(num_props, int) or num_props < 2:
             raise ValueError(f"num_props must be an int >= 2, got {num_props!r}")
-        if twins is not None and np.shape(twins) != (num_props, num_props):
-            raise ValueError(f"twins must be bool[{num_props}, {num_props}], got {np.shape(twins)}")
+        if twins is not None and (np.shape(twins) != (num_props, num_props)
+                                  or not (np.asarray(twins) == np.asarray(twins).T).all()
+                                  or np.diagonal(twins).any()):
+            raise ValueError(f"twins must be a symmetric bool[{num_props}, {num_props}] with a "
+                             f"false diagonal (`specs.twin_matrix`), got shape {np.shape(twins)}")
         self.curriculum = curriculum
         self.num_props = num_props
         self.twins = None if twins is None else np.asarray(twins, bool)

@@ -14,7 +14,8 @@ meets avoid_i, consecutive reach sets are disjoint, and avoid_i excludes reach_{
 r_1, r_2, ... (one reach proposition per step) completes every sequence. Where a world's
 propositions can name one object (the grippers-and-arm Arm's `arm_c` and `grippers_c`: the hand
 touches a sphere the fingers reach), `twins` (bool[P, P], symmetric) keeps each reach's and
-previous reach's twins out of avoid_i as well.
+previous reach's twins out of avoid_i as well, and a stay's twin out of both pairs of a
+reach-stay task (whose task still counts the twin alone as leaving the stay).
 """
 
 from __future__ import annotations
@@ -218,7 +219,9 @@ def reach_stay_from_uniform(
     twins: np.ndarray | None = None,
 ) -> ReachAvoidSequence:
     """`sample_reach_stay` driven by given uniforms u: float32[>= 3, P] in [0, 1); `twins`
-    (bool[P, P] or None): the stay proposition's twins are avoided in neither pair."""
+    (bool[P, P] or None): the stay proposition's twins are in neither pair's avoid set (a
+    task built from the sequence, `tasks.sources.SequenceSource.from_sequence`, still counts
+    the twin alone as leaving the stay)."""
     prop = jnp.minimum(jnp.floor(u[0, 0] * num_props), num_props - 1).astype(jnp.int32)
     stay = jnp.arange(num_props) == prop
     kept_out = stay | _twins_of(stay, twins)
@@ -290,6 +293,9 @@ def all_reach_avoid_tasks(num_props: int, depth: int, max_len: int,
         if all(nxt[0] != prev[0] and nxt[1] != prev[0] and not twin[prev[0], nxt[1]]
                for prev, nxt in itertools.pairwise(chain))
     ]
+    if not chains:
+        raise ValueError(f"no reach-avoid chain of depth {depth} over {num_props} propositions "
+                         "keeps every avoid apart from its reach's twins")
     return _stack_tasks(chains, num_props, max_len)
 
 

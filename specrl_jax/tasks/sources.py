@@ -276,10 +276,14 @@ class SequenceSource:
         return self.from_sequence(seq, task_id)
 
     def from_sequence(self, seq: ReachAvoidSequence, task_id: jax.Array | int = -1) -> SequenceTask:
-        """A task that follows `seq` from its first pair."""
+        """A task that follows `seq` from its first pair. A stay pair (`avoid_empty`) is also
+        violated by every assignment without its reach proposition: with same-object twins
+        (`sequences.twin_matrix`) its proposition set leaves the twin alone unavoided."""
+        reach = symbol_sets(seq.reach, self.alphabet)
+        avoid = symbol_sets(seq.avoid, self.alphabet, seq.avoid_empty)
         return SequenceTask(
-            reach=symbol_sets(seq.reach, self.alphabet),
-            avoid=symbol_sets(seq.avoid, self.alphabet, seq.avoid_empty),
+            reach=reach,
+            avoid=avoid | (seq.avoid_empty[..., None] & ~reach),
             epsilon=seq.epsilon,
             length=(seq.length + seq.repeat_last).astype(jnp.int32),
             pairs=jnp.asarray(seq.length, jnp.int32),

@@ -272,3 +272,5 @@ def test_deepltl_twins_apart_reads_the_worlds_same_object_propositions():
     assert deepltl.make_method(world, params).env.task.source.sampler.twins is None
     with pytest.raises(ValueError, match="declares no propositions that name one object"):
         deepltl.make_method(*specrl_jax.make("PointLTL0-v0"), twins_apart=True)
+    with pytest.raises(TypeError, match="twins_apart must be True or False, got 'false'"):
+        deepltl.make_method(world, params, twins_apart="false")

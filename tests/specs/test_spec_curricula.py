@@ -1,6 +1,7 @@
 """Curricula as data, the jittable stage sampler, and stage advancement."""
 
 import functools
+import itertools
 
 import jax
 import jax.numpy as jnp
@@ -12,6 +13,7 @@ from spec_spot_helpers import reach_avoid_chain
 from specrl_jax import specs
 from specrl_jax.specs import curricula as cur
 from specrl_jax.specs.suites import COLOURS, LETTERS
+from specrl_jax.tasks.sources import SequenceSource
 
 BATCH = 400
 
@@ -215,7 +217,7 @@ def test_twins_stay_out_of_every_avoid_set():
     assert (twins == twins.T).all() and twins.sum() == 4 and not twins.diagonal().any()
     with pytest.raises(ValueError, match="need two of"):
         specs.twin_matrix(["a0", "a1"], [("a0", "c")])
-    with pytest.raises(ValueError, match=r"twins must be bool\[4, 4\]"):
+    with pytest.raises(ValueError, match=r"twins must be a symmetric bool\[4, 4\]"):
         specs.CurriculumSampler(specs.curriculum("deepltl/zone"), 4, twins=np.eye(3, dtype=bool))
     sampler = specs.CurriculumSampler(specs.curriculum("deepltl/zone"), 4, twins=twins)
     assert [cur._num_tasks(t) for t in sampler.tasks if t is not None] == [4, 12, 8, 16]
@@ -231,7 +233,27 @@ def test_twins_stay_out_of_every_avoid_set():
         if stage >= 4:  # mixtures with reach-stay tasks: the stay pair avoids the two others
             stays = np.asarray(s.epsilon[:, 0])
             assert stays.any() and (avoid[stays, 1].sum(-1) == 2).all()
+            assert not (avoid[stays, 0] & twin_of[stays, 1]).any()
+    # a task from a stay pair: every assignment without the stay proposition violates it (the
+    # twin alone too), and so does any other proposition; the stay with its twin does not
+    alphabet = np.array(list(itertools.product([False, True], repeat=4)))
+    source = SequenceSource(sampler, jnp.asarray(alphabet))
+    stays = np.flatnonzero(np.asarray(s.epsilon[:, 0]))[:8]
+    for b in stays:
+        task = source.from_sequence(jax.tree_util.tree_map(lambda x, b=b: x[b], s))
+        stay = int(np.argmax(s.reach[b, 1]))
+        others = ~(np.arange(4) == stay) & ~twins[stay]
+        expected = ~alphabet[:, stay] | alphabet[:, others].any(1)
+        np.testing.assert_array_equal(np.asarray(task.avoid[1]), expected)
+        both = alphabet[:, stay] & alphabet[:, twins[stay]].all(1) & ~alphabet[:, others].any(1)
+        assert both.sum() == 1 and not expected[both].any()
     plain = specs.CurriculumSampler(specs.curriculum("deepltl/zone"), 4)
     s, _ = jax.device_get(jax.vmap(plain.sample, in_axes=(0, None))(
         keys, plain.init().replace(stage=jnp.int32(5))))
     assert (np.asarray(s.avoid) & (np.asarray(s.reach)[..., :, None] & twins).any(-2)).any()
+    for b in np.flatnonzero(np.asarray(s.epsilon[:, 0]))[:8]:  # without twins: the avoid set
+        task = SequenceSource(plain, jnp.asarray(alphabet)).from_sequence(
+            jax.tree_util.tree_map(lambda x, b=b: x[b], s))
+        stay = int(np.argmax(s.reach[b, 1]))
+        np.testing.assert_array_equal(np.asarray(task.avoid[1]), ~alphabet[:, stay] | (
+            alphabet[:, np.arange(4) != stay].any(1)))

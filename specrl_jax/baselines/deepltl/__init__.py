@@ -181,6 +181,8 @@ def make_method(world: Any, params: Any, family: str | None = None,
         raise ValueError(f"stay_steps={stay_steps}: a stay of {stay_steps} + 1 steps must fit in "
                          f"the world's training episode of {params.max_steps} steps, after "
                          "reaching the zone; take fewer or a longer episode")
+    if not isinstance(twins_apart, bool):
+        raise TypeError(f"twins_apart must be True or False, got {twins_apart!r}")
     twins = None
     if twins_apart:
         same_object = getattr(world, "same_object", ())
