@@ -217,9 +217,7 @@ class Physics:
     def __init__(self, model: mujoco.MjModel, force_limit: np.ndarray, substeps: int = SUBSTEPS,
                  solve_capacities: tuple[float, ...] | None = SOLVE_CAPACITIES,
                  solve_pairs: int | None = SOLVE_PAIRS, motor_solve: str = "auto"):
-        if motor_solve not in MOTOR_SOLVES:
-            raise ValueError(f"motor_solve={motor_solve!r}; choose one of {', '.join(MOTOR_SOLVES)}")
-        self.motor_solve = motor_solve
+        self.motor_solve = motor_solve  # checked where it runs (`motor_torque`) and by ArmConfig
         self.mj_model = model
         self._digest = compiled.model_digest(model)
         self.model = mjx.put_model(model, impl="jax")
