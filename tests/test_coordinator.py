@@ -379,3 +379,34 @@ def test_gcrl_agent_pursues_the_coordinators_goal_and_turns_from_its_avoid_set()
                        jnp.zeros(5, bool), jnp.zeros(5, bool), jnp.bool_(True))
     obs = {k: v[0] for k, v in dots._obs(jnp.zeros((2, 2))).items() if k != "others"}
     np.testing.assert_allclose(agent(net, obs, two, jax.random.key(0)), [0.0, 0.5])
+
+
+def test_coordinator_agents_take_mode_actions_unless_sampling_is_asked():
+    """The coordinator's DeepLTL agent: the mean action whatever the key (the grid's mode
+    actions), a key-dependent draw with `deterministic=False`; GCRL-LTL refuses sampling."""
+    from types import SimpleNamespace
+
+    from specrl_jax.benchmark import grid, reproduce
+
+    class Net:
+        continuous = True
+
+        def apply(self, params, obs):
+            mean = jnp.array([0.5, -0.5, 0.0])  # the last output is DeepLTL's epsilon
+            zero = jnp.zeros(())
+            return PolicyOutput(DiagGaussian(mean, jnp.full(3, 0.3)), zero, zero, zero)
+
+    obs = {"ap": jnp.zeros((4, 16)), "ego": jnp.zeros(16)}
+    kinds = {"ap": "lidar", "ego": "vector"}
+    goal = SimpleNamespace(reach_symbols=jnp.zeros(5, bool), avoid_symbols=jnp.zeros(5, bool))
+    keys = jax.random.split(jax.random.key(0), 2)
+    mode = reproduce._deepltl_agent(Net(), kinds)
+    sampled = reproduce._deepltl_agent(Net(), kinds, deterministic=False)
+    for key in keys:
+        np.testing.assert_array_equal(mode(None, obs, goal, key), [0.5, -0.5])
+    a, b = (np.asarray(sampled(None, obs, goal, key)) for key in keys)
+    assert a.shape == (2,) and not np.allclose(a, b) and not np.allclose(a, [0.5, -0.5])
+    with pytest.raises(ValueError, match="GCRL-LTL's coordinator agent acts on"):
+        reproduce.evaluate_coordinator(grid.cell("PointLTL0MA2-v0/gcrl+coordinator"), None,
+                                       ["multi_agent_zone/infinite/per"], print,
+                                       deterministic=False)

@@ -342,23 +342,28 @@ def record_trajectories(cell: Cell, params: Any, episodes: int = 3) -> dict[str,
 # The multi-agent coordinator: single-agent policies of PointLTL0 on every agent
 
 
-def _genz_agent(network: Any, obs_kinds: dict[str, str]):
+def _action(pi: Any, deterministic: bool, key: Any) -> Any:
+    return pi.mode() if deterministic else pi.sample(key)
+
+
+def _genz_agent(network: Any, obs_kinds: dict[str, str], deterministic: bool = True):
     """GenZ-LTL on one agent: its reduced observation (reach / avoid LiDAR pooled) -> mode
-    action."""
+    action (`deterministic`), else a sampled one."""
     from specrl_jax.baselines import genz
 
     kinds = dict(obs_kinds)
 
     def act(params, obs, goal, key):
         parts = genz.reduce_observation(obs, kinds, goal.reach, goal.avoid)
-        return network.apply(params, parts).pi.mode()
+        return _action(network.apply(params, parts).pi, deterministic, key)
 
     return act
 
 
-def _deepltl_agent(network: Any, obs_kinds: dict[str, str]):
+def _deepltl_agent(network: Any, obs_kinds: dict[str, str], deterministic: bool = True):
     """DeepLTL on one agent: its subgoal as a one-pair sequence over the single-agent alphabet
-    (the empty label avoidable) -> mode action, the epsilon output dropped."""
+    (the empty label avoidable) -> mode action (`deterministic`; else sampled), the epsilon
+    output dropped (the coordinator takes epsilon edges)."""
     import jax.numpy as jnp
 
     from specrl_jax.baselines import deepltl
@@ -371,14 +376,16 @@ def _deepltl_agent(network: Any, obs_kinds: dict[str, str]):
         seq = deepltl.SequenceObs(
             obs_parts(obs, kinds), goal.reach_symbols[None], goal.avoid_symbols[None],
             jnp.zeros(1, bool), jnp.int32(0), jnp.int32(1), jnp.zeros((), bool))
-        return split(network.apply(params, seq).pi.mode())[0]
+        return split(_action(network.apply(params, seq).pi, deterministic, key))[0]
 
     return act
 
 
-def evaluate_coordinator(cell: Cell, params: Any, suites: Sequence[str], log: Log) -> list:
+def evaluate_coordinator(cell: Cell, params: Any, suites: Sequence[str], log: Log,
+                         deterministic: bool = True) -> list:
     """The coordinator cell's suites: the `params_from` cell's network (seed-1 `params`, seed
-    axis of 1) on every agent of `cell.env_id`, each evaluation seed running those parameters."""
+    axis of 1) on every agent of `cell.env_id`, each evaluation seed running those parameters;
+    mode actions (`deterministic`, docs/fidelity.md), else sampled ones (GenZ-LTL and DeepLTL)."""
     import warnings
 
     import jax
@@ -402,7 +409,11 @@ def evaluate_coordinator(cell: Cell, params: Any, suites: Sequence[str], log: Lo
     method_obj = experiment.make_method(source.method, single, single_params,
                                         experiment.family(source.env_id), source.options() or None)
     builders = {"genz": _genz_agent, "deepltl": _deepltl_agent, "gcrl": gcrl.coordinator_agent}
-    policy = make_coordinator(builders[source.method](method_obj.network, single.obs_kinds), env)
+    if not deterministic and source.method == "gcrl":
+        raise ValueError("GCRL-LTL's coordinator agent acts on its primitives' mode actions only")
+    agent = (builders[source.method](method_obj.network, single.obs_kinds) if deterministic
+             else builders[source.method](method_obj.network, single.obs_kinds, deterministic=False))
+    policy = make_coordinator(agent, env)
     one = jax.device_put(jax.tree.map(lambda x: x[0], params))
     with warnings.catch_warnings():  # three specs exceed the candidate caps (fidelity.md)
         warnings.filterwarnings("ignore", message=".*candidate sequences dropped")
