@@ -52,12 +52,18 @@ def positive_float(text: str) -> float:
     return value
 
 
+#: the shell's spellings of booleans and None, read as Python's
+_WORDS = {"true": True, "false": False, "none": None}
+
+
 def env_option(text: str) -> tuple[str, Any]:
-    """argparse type: `KEY=VALUE`, the value read as a Python literal (int, float, bool, tuple)
-    or else kept as a string."""
+    """argparse type: `KEY=VALUE`, the value read as a Python literal (int, float, bool, tuple;
+    true / false / none in any case too) or else kept as a string."""
     key, sep, value = text.partition("=")
     if not sep or not key.isidentifier():
         raise argparse.ArgumentTypeError(f"expected KEY=VALUE (e.g. image_size=64), got {text!r}")
+    if value.lower() in _WORDS:
+        return key, _WORDS[value.lower()]
     try:
         return key, ast.literal_eval(value)
     except (ValueError, SyntaxError):

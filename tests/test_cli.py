@@ -96,6 +96,8 @@ def test_env_options_parse_as_literals_and_reach_the_world():
 
     assert cli.env_option("image_size=64") == ("image_size", 64)
     assert cli.env_option("partial=True") == ("partial", True)
+    assert cli.env_option("twins_apart=true") == ("twins_apart", True)
+    assert cli.env_option("partial=FALSE") == ("partial", False)
     assert cli.env_option("physics=warp") == ("physics", "warp")
     with pytest.raises(argparse.ArgumentTypeError, match="KEY=VALUE"):
         cli.env_option("image_size")
