@@ -40,6 +40,8 @@ SCRIPTS = {
     "lab/arm_motor_solve.py": ["--batches", "8", "--repeats", "1"],
     "lab/arm_grippers_alone.py": ["--episodes", "2", "--steps", "2", "--heights", "0.05"],
     "lab/curriculum_pairs.py": ["--policy", "random", "--env", "LetterLTL0-v0", "--episodes", "1"],
+    "lab/coordinator_actions.py": ["--cells", "PointLTL0MA2-v0/genz+coordinator", "--episodes", "1",
+                                   "--horizon", "3"],
     "bench_speed.py": ["--part", "gymnasium", "--seeds", "1", "--episodes", "1",
                        "--num-envs", "4"],
 }

@@ -23,7 +23,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import harness
 
 
-def measure(cell_name: str, suite: str, seeds: int, episodes: int) -> dict:
+def measure(cell_name: str, suite: str, seeds: int, episodes: int,
+            horizon: int | None = None) -> dict:
     from specrl_jax.benchmark import grid
     from specrl_jax.benchmark.reproduce import evaluate_coordinator
     from specrl_jax.benchmark.store import Store
@@ -33,7 +34,7 @@ def measure(cell_name: str, suite: str, seeds: int, episodes: int) -> dict:
     modes = {}
     for name, deterministic in (("mode", True), ("sampled", False)):
         (result,) = evaluate_coordinator(cell, params, [suite], log=lambda line: None,
-                                         deterministic=deterministic)
+                                         deterministic=deterministic, horizon=horizon)
         summary = result.result.summary({"all": list(range(len(result.result.spec_names)))})
         modes[name] = {
             "eta_v": round(float(summary["groups"]["all"]["eta_v_mean"]), 3),
@@ -45,7 +46,7 @@ def measure(cell_name: str, suite: str, seeds: int, episodes: int) -> dict:
              f"{modes['mode']['mu_acc']:.0f} / {modes['sampled']['mu_acc']:.0f}")
     return harness.row(f"{cell_name}, {suite}: the coordinator's agents on mode against sampled "
                        "actions", value, seeds * episodes, seeds=seeds, episodes_per_spec=episodes,
-                       **modes)
+                       horizon=horizon or result.result.horizon, **modes)
 
 
 def main() -> None:
@@ -55,11 +56,13 @@ def main() -> None:
     parser.add_argument("--suites", nargs="+", default=["multi_agent_zone/infinite/per"])
     parser.add_argument("--seeds", type=int, default=1, help="evaluation seeds 1..N")
     parser.add_argument("--episodes", type=int, default=8, help="episodes per spec and seed")
+    parser.add_argument("--horizon", type=int, default=None,
+                        help="env steps per episode (default: each suite's own)")
     parser.add_argument("--out", default=None, help="append the JSON rows to this file")
     args = parser.parse_args()
     for cell in args.cells:
         for suite in args.suites:
-            harness.emit(measure(cell, suite, args.seeds, args.episodes), args.out)
+            harness.emit(measure(cell, suite, args.seeds, args.episodes, args.horizon), args.out)
 
 
 if __name__ == "__main__":

@@ -382,10 +382,11 @@ def _deepltl_agent(network: Any, obs_kinds: dict[str, str], deterministic: bool 
 
 
 def evaluate_coordinator(cell: Cell, params: Any, suites: Sequence[str], log: Log,
-                         deterministic: bool = True) -> list:
+                         deterministic: bool = True, horizon: int | None = None) -> list:
     """The coordinator cell's suites: the `params_from` cell's network (seed-1 `params`, seed
     axis of 1) on every agent of `cell.env_id`, each evaluation seed running those parameters;
-    mode actions (`deterministic`, docs/fidelity.md), else sampled ones (GenZ-LTL and DeepLTL)."""
+    mode actions (`deterministic`, docs/fidelity.md), else sampled ones (GenZ-LTL and DeepLTL).
+    `horizon` overrides every suite's episode length (smoke runs)."""
     import warnings
 
     import jax
@@ -419,7 +420,7 @@ def evaluate_coordinator(cell: Cell, params: Any, suites: Sequence[str], log: Lo
         warnings.filterwarnings("ignore", message=".*candidate sequences dropped")
         return evaluate_suites(policy, cell.env_id, SystemWorld(env), env_params, suites,
                                cell.episodes, seeds=range(1, cell.seeds + 1), policy_params=one,
-                               label=f"{source.method} + coordinator", log=log)
+                               horizon=horizon, label=f"{source.method} + coordinator", log=log)
 
 
 # ---------------------------------------------------------------------------------------------
