@@ -7,6 +7,7 @@ coordinated episode through the ordinary task loop and evaluator."""
 from __future__ import annotations
 
 import itertools
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -171,7 +172,7 @@ def test_split_matches_a_python_transcription_on_random_pairs(env_id):
 
 
 def test_agent_codes_rebuild_the_joint_alphabet(world):
-    env, _, alphabet, agent_alphabet, codes = world
+    _env, _, alphabet, agent_alphabet, codes = world
     rebuilt = np.concatenate([agent_alphabet[np.asarray(codes)[:, i]] for i in range(2)], axis=1)
     np.testing.assert_array_equal(rebuilt, alphabet)
     pairs = sorted(map(tuple, np.asarray(codes).tolist()))
@@ -241,7 +242,7 @@ class _DotWorld:
     agents, num_agents = ("agent_0", "agent_1"), 2
     propositions = tuple(f"{c}_{i}" for i in range(2) for c in COLOURS)
     num_propositions = 8
-    obs_kinds = {"ap": "vector", "ego": "vector", "others": "vector"}
+    obs_kinds: ClassVar[dict[str, str]] = {"ap": "vector", "ego": "vector", "others": "vector"}
     default_params = _DotParams()
     action_space = type("Space", (), {"shape": (2, 2)})()
     world = type("One", (), {"alphabet": automata.zero_or_one(4)})()
