@@ -20,6 +20,9 @@ implementations:
            one set of parameters, the patch matmul's gradient under `vmap` (on a GPU)
   patches_bf16  `patches` with the patch matrix and the kernel in bfloat16, accumulated in float32
            (half the patch matrix's memory traffic; gradients within bfloat16's precision)
+  library_bf16  `library` with the input and the kernel in bfloat16, accumulated in float32 (the
+           gradient's convolutions in bfloat16 too; with `--in-turn`, the lever for seeds that
+           learn in turn, whose update is the library convolution's)
 
 For each `--cases SIZE:IMAGES` (IMAGES per seed) it times the forward pass (the rollout's policy
 inference) and the value and gradient of a scalar loss (a minibatch step), median of `--repeats`
@@ -97,6 +100,15 @@ def patches_bf16_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
     return jnp.matmul(patches, weights, preferred_element_type=jnp.float32)
 
 
+def library_bf16_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
+    networks.conv_output_size(x.shape[-3:-1], SIZE, STRIDE, PADDING)
+    y = jax.lax.conv_general_dilated(
+        x.reshape(-1, *x.shape[-3:]).astype(jnp.bfloat16), kernel.astype(jnp.bfloat16),
+        (STRIDE, STRIDE), ((PADDING, PADDING),) * 2, dimension_numbers=("NHWC", "HWIO", "NHWC"),
+        preferred_element_type=jnp.float32)
+    return y.reshape(*x.shape[:-3], *y.shape[1:])
+
+
 def cnn_with(conv: Callable[[jax.Array, jax.Array], jax.Array]) -> Callable:
     """`ImageCNN`'s function with its convolution replaced by `conv` (the same parameters)."""
 
@@ -118,11 +130,12 @@ IMPLEMENTATIONS = {
     "shifted": cnn_with(shifted_conv),
     "recompute": ImageCNN(conv="library_forward").apply,
     "patches_bf16": cnn_with(patches_bf16_conv),
+    "library_bf16": cnn_with(library_bf16_conv),
 }
 #: largest relative gradient difference to the library's: TF32 matmuls and convolutions on GPUs
 #: give about 1e-2; bfloat16 operands (8-bit mantissa) 3e-2 on 32 images a seed, 0.14 on 2
 #: (a check that it is the same function; the precision is what the row's figure reports)
-TOLERANCE = {"patches_bf16": 0.3}
+TOLERANCE = {"patches_bf16": 0.3, "library_bf16": 0.3}
 
 
 def programs(apply: Callable, params: Any, images: jax.Array, in_turn: bool) -> dict[str, Any]:
