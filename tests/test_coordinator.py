@@ -383,8 +383,9 @@ def test_gcrl_agent_pursues_the_coordinators_goal_and_turns_from_its_avoid_set()
 
 
 def test_coordinator_agents_take_mode_actions_unless_sampling_is_asked():
-    """The coordinator's DeepLTL agent: the mean action whatever the key (the grid's mode
-    actions), a key-dependent draw with `deterministic=False`; GCRL-LTL refuses sampling."""
+    """The coordinator's DeepLTL and GenZ-LTL agents: the mean action whatever the key (the
+    grid's mode actions), a key-dependent draw with `deterministic=False`; GCRL-LTL refuses
+    sampling."""
     from types import SimpleNamespace
 
     from specrl_jax.benchmark import grid, reproduce
@@ -403,6 +404,19 @@ def test_coordinator_agents_take_mode_actions_unless_sampling_is_asked():
     keys = jax.random.split(jax.random.key(0), 2)
     mode = reproduce._deepltl_agent(Net(), kinds)
     sampled = reproduce._deepltl_agent(Net(), kinds, deterministic=False)
+    for key in keys:
+        np.testing.assert_array_equal(mode(None, obs, goal, key), [0.5, -0.5])
+    a, b = (np.asarray(sampled(None, obs, goal, key)) for key in keys)
+    assert a.shape == (2,) and not np.allclose(a, b) and not np.allclose(a, [0.5, -0.5])
+
+    class GenZNet(Net):
+        def apply(self, params, parts):
+            out = super().apply(params, parts)
+            return out._replace(pi=DiagGaussian(out.pi.mean[:2], out.pi.std[:2]))
+
+    goal = SimpleNamespace(reach=jnp.zeros(4, bool).at[0].set(True), avoid=jnp.zeros(4, bool))
+    mode = reproduce._genz_agent(GenZNet(), kinds)
+    sampled = reproduce._genz_agent(GenZNet(), kinds, deterministic=False)
     for key in keys:
         np.testing.assert_array_equal(mode(None, obs, goal, key), [0.5, -0.5])
     a, b = (np.asarray(sampled(None, obs, goal, key)) for key in keys)

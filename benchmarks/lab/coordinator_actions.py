@@ -1,11 +1,11 @@
-"""The multi-agent coordinator with mode actions (the grid's) against sampled ones (what the
+"""The multi-agent coordinator with mode actions (the grid's) against sampled ones (what DeepLTL's
 single-agent infinite suites use): does the action mode move a coordinator cell's violations?
 
 For each coordinator cell of the results store (its method's stored seed-1 parameters on every
 agent), this script evaluates `--suites` with both action modes over `--seeds` evaluation seeds
 x `--episodes` episodes per spec (each suite's own horizon, unless `--horizon`), and prints one
 JSON row per cell and suite (`benchmarks/harness.py`; appended to `--out` if given): each mode's
-violation rate and mean accepting visits, per spec.
+violation rate (over the suite and per spec) and mean accepting visits.
 
     python benchmarks/lab/coordinator_actions.py --cells 'PointLTL0MA2-v0/deepltl+coordinator' \\
         --suites multi_agent_zone/infinite/per --seeds 1 --episodes 8

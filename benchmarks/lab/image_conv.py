@@ -20,9 +20,9 @@ implementations:
            one set of parameters, the patch matmul's gradient under `vmap` (on a GPU)
   patches_bf16  `patches` with the patch matrix and the kernel in bfloat16, accumulated in float32
            (half the patch matrix's memory traffic; gradients within bfloat16's precision)
-  library_bf16  `library` with the input and the kernel in bfloat16, accumulated in float32 (the
-           gradient's convolutions in bfloat16 too; with `--in-turn`, the lever for seeds that
-           learn in turn, whose update is the library convolution's)
+  library_bf16  `library` with the input, the kernel and the output in bfloat16 (the gradient's
+           convolutions in bfloat16 too; with `--in-turn`, the lever for seeds that learn in
+           turn, whose update is the library convolution's)
 
 For each `--cases SIZE:IMAGES` (IMAGES per seed) it times the forward pass (the rollout's policy
 inference) and the value and gradient of a scalar loss (a minibatch step), median of `--repeats`
@@ -102,11 +102,12 @@ def patches_bf16_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
 
 def library_bf16_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
     networks.conv_output_size(x.shape[-3:-1], SIZE, STRIDE, PADDING)
+    # a bfloat16 output (cast after): the cotangent reaches the gradient's convolutions in
+    # bfloat16 too, where a float32 output would cast their operands back to float32
     y = jax.lax.conv_general_dilated(
         x.reshape(-1, *x.shape[-3:]).astype(jnp.bfloat16), kernel.astype(jnp.bfloat16),
-        (STRIDE, STRIDE), ((PADDING, PADDING),) * 2, dimension_numbers=("NHWC", "HWIO", "NHWC"),
-        preferred_element_type=jnp.float32)
-    return y.reshape(*x.shape[:-3], *y.shape[1:])
+        (STRIDE, STRIDE), ((PADDING, PADDING),) * 2, dimension_numbers=("NHWC", "HWIO", "NHWC"))
+    return y.astype(jnp.float32).reshape(*x.shape[:-3], *y.shape[1:])
 
 
 def cnn_with(conv: Callable[[jax.Array, jax.Array], jax.Array]) -> Callable:
