@@ -42,6 +42,8 @@ SCRIPTS = {
     "lab/curriculum_pairs.py": ["--policy", "random", "--env", "LetterLTL0-v0", "--episodes", "1"],
     "lab/coordinator_actions.py": ["--cells", "PointLTL0MA2-v0/genz+coordinator", "--episodes", "1",
                                    "--horizon", "3"],
+    "lab/arm_solve_capacity.py": ["--policy", "random", "--capacities", "1.0", "--episodes", "1",
+                                  "--steps", "2"],
     "bench_speed.py": ["--part", "gymnasium", "--seeds", "1", "--episodes", "1",
                        "--num-envs", "4"],
 }
