@@ -398,29 +398,27 @@ def test_coordinator_agents_take_mode_actions_unless_sampling_is_asked():
             zero = jnp.zeros(())
             return PolicyOutput(DiagGaussian(mean, jnp.full(3, 0.3)), zero, zero, zero)
 
-    obs = {"ap": jnp.zeros((4, 16)), "ego": jnp.zeros(16)}
-    kinds = {"ap": "lidar", "ego": "vector"}
-    goal = SimpleNamespace(reach_symbols=jnp.zeros(5, bool), avoid_symbols=jnp.zeros(5, bool))
-    keys = jax.random.split(jax.random.key(0), 2)
-    mode = reproduce._deepltl_agent(Net(), kinds)
-    sampled = reproduce._deepltl_agent(Net(), kinds, deterministic=False)
-    for key in keys:
-        np.testing.assert_array_equal(mode(None, obs, goal, key), [0.5, -0.5])
-    a, b = (np.asarray(sampled(None, obs, goal, key)) for key in keys)
-    assert a.shape == (2,) and not np.allclose(a, b) and not np.allclose(a, [0.5, -0.5])
-
     class GenZNet(Net):
         def apply(self, params, parts):
             out = super().apply(params, parts)
             return out._replace(pi=DiagGaussian(out.pi.mean[:2], out.pi.std[:2]))
 
-    goal = SimpleNamespace(reach=jnp.zeros(4, bool).at[0].set(True), avoid=jnp.zeros(4, bool))
-    mode = reproduce._genz_agent(GenZNet(), kinds)
-    sampled = reproduce._genz_agent(GenZNet(), kinds, deterministic=False)
-    for key in keys:
-        np.testing.assert_array_equal(mode(None, obs, goal, key), [0.5, -0.5])
-    a, b = (np.asarray(sampled(None, obs, goal, key)) for key in keys)
-    assert a.shape == (2,) and not np.allclose(a, b) and not np.allclose(a, [0.5, -0.5])
+    obs = {"ap": jnp.zeros((4, 16)), "ego": jnp.zeros(16)}
+    kinds = {"ap": "lidar", "ego": "vector"}
+    keys = jax.random.split(jax.random.key(0), 2)
+    agents = [  # (builder, network, the subgoal it reads)
+        (reproduce._deepltl_agent, Net(),
+         SimpleNamespace(reach_symbols=jnp.zeros(5, bool), avoid_symbols=jnp.zeros(5, bool))),
+        (reproduce._genz_agent, GenZNet(),
+         SimpleNamespace(reach=jnp.zeros(4, bool).at[0].set(True), avoid=jnp.zeros(4, bool))),
+    ]
+    for builder, network, goal in agents:
+        mode = builder(network, kinds)
+        sampled = builder(network, kinds, deterministic=False)
+        for key in keys:
+            np.testing.assert_array_equal(mode(None, obs, goal, key), [0.5, -0.5])
+        a, b = (np.asarray(sampled(None, obs, goal, key)) for key in keys)
+        assert a.shape == (2,) and not np.allclose(a, b) and not np.allclose(a, [0.5, -0.5])
     with pytest.raises(ValueError, match="GCRL-LTL's coordinator agent acts on"):
         reproduce.evaluate_coordinator(grid.cell("PointLTL0MA2-v0/gcrl+coordinator"), None,
                                        ["multi_agent_zone/infinite/per"], print,
