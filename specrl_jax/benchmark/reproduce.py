@@ -400,6 +400,8 @@ def evaluate_coordinator(cell: Cell, params: Any, suites: Sequence[str], log: Lo
     from specrl_jax.tasks.coordinator import SystemWorld, check_spec_agents, make_coordinator
 
     source = grid.cell(cell.params_from)
+    if not deterministic and source.method == "gcrl":
+        raise ValueError("GCRL-LTL's coordinator agent acts on its primitives' mode actions only")
     env, env_params = make(cell.env_id)
     single, single_params = make(source.env_id)
     if not np.array_equal(np.asarray(single.alphabet), np.asarray(env.world.alphabet)):
@@ -410,11 +412,9 @@ def evaluate_coordinator(cell: Cell, params: Any, suites: Sequence[str], log: Lo
     method_obj = experiment.make_method(source.method, single, single_params,
                                         experiment.family(source.env_id), source.options() or None)
     builders = {"genz": _genz_agent, "deepltl": _deepltl_agent, "gcrl": gcrl.coordinator_agent}
-    if not deterministic and source.method == "gcrl":
-        raise ValueError("GCRL-LTL's coordinator agent acts on its primitives' mode actions only")
-    agent = (builders[source.method](method_obj.network, single.obs_kinds) if deterministic
-             else builders[source.method](method_obj.network, single.obs_kinds, deterministic=False))
-    policy = make_coordinator(agent, env)
+    sampling = {} if deterministic else {"deterministic": False}
+    policy = make_coordinator(
+        builders[source.method](method_obj.network, single.obs_kinds, **sampling), env)
     one = jax.device_put(jax.tree.map(lambda x: x[0], params))
     with warnings.catch_warnings():  # three specs exceed the candidate caps (fidelity.md)
         warnings.filterwarnings("ignore", message=".*candidate sequences dropped")
