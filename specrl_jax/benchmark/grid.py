@@ -229,6 +229,8 @@ TRAIN_RATES: dict[tuple[str, str], tuple[float, str]] = {
     ("PandaLTLReach0Joints-v0", "rad"): (113_980, "H200, 5 x 15M, compile and a resume included"),
     ("PointLTL0Vision-v0", "genz"): (68_361, "H200, 5 x 15M at 64 x 64, compile and two resumes included"),
     ("PointLTL0Vision-v0", "rad"): (34_009, "H200, 5 seeds at 64 x 64, the loop's rate after compilation"),
+    ("PointLTL0Vision-v0", "deepltl"): (55_800, "H200, 5 seeds at 64 x 64 learning in turn, the loop's "
+                                                "rate after compilation (updates 11-162)"),
 }
 #: env ID (without variant suffix) -> measured auto-reset env-steps/s on one GPU, best batch
 ENV_RATES: dict[str, tuple[float, str]] = {
@@ -243,7 +245,7 @@ ENV_RATES: dict[str, tuple[float, str]] = {
 TRAIN_PER_ENV_STEP = 0.16
 #: image worlds: the Point camera world's measured training rate plus the robot's extra physics
 #: time per env step. The image pipeline bounds these loops, so a method without GenZ-LTL's KL
-#: stop of the epochs trains at RAD's rate (every epoch), whatever its rate on lidar.
+#: stop of the epochs trains at DeepLTL's rate (every epoch), whatever its rate on lidar.
 VISION_BASE = "PointLTL0Vision-v0"
 #: measured evaluation wall time of a cell's suites, 5 seeds x 100 episodes, compile included
 EVAL_S: dict[str, float] = {"LetterLTL0-v0": 48.0, "PointLTL0-v0": 42.0, "PointLTL1-v0": 53.0,
@@ -275,7 +277,7 @@ def training_rate(c: Cell) -> float:
     if (env, key) in TRAIN_RATES:
         return TRAIN_RATES[(env, key)][0]
     if "Vision" in env:
-        base = TRAIN_RATES.get((VISION_BASE, key), TRAIN_RATES[(VISION_BASE, "rad")])[0]
+        base = TRAIN_RATES.get((VISION_BASE, key), TRAIN_RATES[(VISION_BASE, "deepltl")])[0]
         point = ENV_RATES["PointLTL0-v0"][0]
         physics = 1 / ENV_RATES.get(env.replace("Vision", ""), (point,))[0] - 1 / point
         return 1 / (1 / base + physics)
