@@ -54,7 +54,7 @@ OWN_JSON = {"lab/arm_vs_pybullet.py"}
 #: the harness module itself
 NOT_SCRIPTS = {"harness.py"}
 #: scripts smoke-run by a test file of their own
-OWN_TEST = {"train_profile.py": "tests/test_train_profile.py"}
+OWN_TEST = {"train_profile.py": "tests/test_train_profile.py", "pack_warp.py": "tests/test_pack_warp.py"}
 ROW_KEYS = {"figure", "value", "device", "batch", "versions", "date", "command"}
 
 
