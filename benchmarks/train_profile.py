@@ -163,7 +163,8 @@ def build(args: argparse.Namespace, num_devices: int) -> tuple[Any, Any, dict[st
     key_bank, key_train = jax.random.split(jax.random.key(args.seed))
     start = time.perf_counter()
     world, _, method_obj, config = experiment.build(
-        args.method, args.env, overrides, map_bank or None, key_bank, args.env_option)
+        args.method, args.env, overrides, map_bank or None, key_bank, args.env_option,
+        args.method_option)
     experiment.warn_slow_camera(world, platform)
     notes = {"map_bank": map_bank, "setup_s": round(time.perf_counter() - start, 2),
              "physics": getattr(getattr(world, "physics", None), "backend", None),
@@ -375,7 +376,7 @@ def profile(args: argparse.Namespace, num_devices: int = 1) -> dict[str, Any]:
         "num_steps": cfg.num_steps, "num_minibatches": cfg.num_minibatches,
         "minibatch_size": cfg.minibatch_size, "update_epochs": cfg.update_epochs,
         "target_kl": cfg.target_kl, "updates": n, "repeats": args.repeats,
-        "env_options": args.env_option, **notes,
+        "env_options": args.env_option, "method_options": args.method_option, **notes,
         **{f"{part}_s": s for part, s in per_update.items()},
         **{f"{part}_steps_per_s": steps / s for part, s in per_update.items()},
         "rollout_share": per_update["rollout"] / (per_update["rollout"] + per_update["update"]),
@@ -464,6 +465,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                              "kind; 0: exact resets)")
     parser.add_argument("--env-option", type=_option, action="append", default=[],
                         metavar="KEY=VALUE", help="an override of the world, e.g. image_size=64")
+    parser.add_argument("--method-option", type=_option, action="append", default=[],
+                        metavar="KEY=VALUE",
+                        help="a method option, e.g. image_dtype=bfloat16 (the image CNN's convolutions)")
     parser.add_argument("--learn-in-turn", choices=("on", "off"), default=None,
                         help="seeds learn one after the other, each to its own KL stop "
                              "(PPOConfig.learn_seeds_in_turn; default: the training's, on for "
@@ -497,7 +501,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if max(args.devices) > jax.local_device_count():
         parser.error(f"--devices {max(args.devices)}: this process has "
                      f"{jax.local_device_count()} local device(s) ({jax.devices()[0].platform})")
-    args.env_option = dict(args.env_option)
+    args.env_option, args.method_option = dict(args.env_option), dict(args.method_option)
     return args
 
 

@@ -349,8 +349,9 @@ def _draw_trajectories(policy: Any, env: Any, params: Any, args: argparse.Namesp
              "encoder=ENCODER.msgpack (a pretrained formula encoder), freeze_encoder=True, "
              "pretrain_steps=10000000; for rad sampler=rad; for deepltl stay_steps=300 (longer "
              "reach-stay tasks), twins_apart=True (no avoid set holds its reach's same-object "
-             "proposition, the grippers-and-arm Arm's arm_c / grippers_c); a wrong key lists the "
-             "accepted ones"),
+             "proposition, the grippers-and-arm Arm's arm_c / grippers_c); for every method "
+             "image_dtype=bfloat16 (the image CNN's convolutions in bfloat16); a wrong key lists "
+             "the accepted ones"),
     *PROCESS_ARGS,
 )
 def train_command(args: argparse.Namespace) -> int:

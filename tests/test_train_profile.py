@@ -82,13 +82,15 @@ def test_train_profile_runs_tiny_and_its_parts_add_up(tmp_path):
 
 def test_train_profile_times_seeds_learning_in_turn(tmp_path):
     out = tmp_path / "rows.json"
-    args = [*ARGS[:ARGS.index("--devices")], "--seeds", "2", "--learn-in-turn", "on", "--out", str(out)]
+    args = [*ARGS[:ARGS.index("--devices")], "--seeds", "2", "--learn-in-turn", "on",
+            "--method-option", "image_dtype=float32", "--out", str(out)]
     env = dict(os.environ, JAX_PLATFORMS=os.environ.get("JAX_PLATFORMS", "cpu"))
     done = subprocess.run([sys.executable, str(SCRIPT), *args], check=False, cwd=tmp_path,
                           env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, f"failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
     (row,) = [json.loads(line) for line in out.read_text().splitlines()]
     assert row["learn_in_turn"] and row["seeds"] == 2
+    assert row["method_options"] == {"image_dtype": "float32"}
     assert row["epochs_per_seed"] == [1, 1] and row["full_epochs_per_seed"] == [[1], [1]]
     assert all(row[f"{part}_s"] > 0 for part in PARTS)
 

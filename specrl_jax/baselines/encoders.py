@@ -31,6 +31,18 @@ def check_kinds(obs_kinds: Mapping[str, str]) -> None:
         )
 
 
+#: `image_dtype` values: the image CNN's convolutions in float32 (the original's) or bfloat16
+IMAGE_DTYPES = ("float32", "bfloat16")
+
+
+def check_image_dtype(image_dtype: str) -> str:
+    """`image_dtype`, or a clear error naming the accepted values."""
+    if image_dtype not in IMAGE_DTYPES:
+        raise ValueError(f"image_dtype={image_dtype!r}; choose one of {', '.join(IMAGE_DTYPES)} "
+                         "(the image CNN's convolutions; bfloat16 halves their memory traffic)")
+    return image_dtype
+
+
 def obs_parts(obs: Mapping[str, jax.Array], obs_kinds: Mapping[str, str],
               skip: tuple[str, ...] = ()) -> dict[str, jax.Array]:
     """A world observation (one env) -> encoder parts: grid parts stacked on the channel axis
@@ -56,10 +68,11 @@ def obs_parts(obs: Mapping[str, jax.Array], obs_kinds: Mapping[str, str],
 
 class ImageCNN(nn.Module):
     """Conv 5x5, stride 2, padding 1, ReLU, channels (16, 32, 64, 64, 32), on uint8[..., H, W, 3]
-    scaled to [0, 1]; flattened. `conv`: `PatchConv`'s."""
+    scaled to [0, 1]; flattened. `conv`, `compute_dtype`: `PatchConv`'s."""
 
     channels: tuple[int, ...] = (16, 32, 64, 64, 32)
     conv: str = "auto"
+    compute_dtype: str = "float32"
 
     @nn.compact
     def __call__(self, image: jax.Array) -> jax.Array:
@@ -68,16 +81,18 @@ class ImageCNN(nn.Module):
         x = x.reshape(-1, *x.shape[-3:])
         for i, width in enumerate(self.channels):
             conv = PatchConv(width, size=5, stride=2, padding=1, conv=self.conv,
-                             name=f"Conv_{i}")
+                             compute_dtype=self.compute_dtype, name=f"Conv_{i}")
             x = nn.relu(conv(x))
         return x.reshape(*batch, -1)
 
 
 class ObsEncoder(nn.Module):
     """Embeds the parts of `obs_parts`: grid -> CNN, vector -> MLP `vector_features` Tanh, image
-    -> CNN; the embeddings concatenated (in the order grid, vector, image)."""
+    -> CNN (its convolutions in `image_dtype`); the embeddings concatenated (in the order grid,
+    vector, image)."""
 
     vector_features: tuple[int, ...] = (128, 64)
+    image_dtype: str = "float32"
 
     @nn.compact
     def __call__(self, parts: Mapping[str, jax.Array]) -> jax.Array:
@@ -87,5 +102,5 @@ class ObsEncoder(nn.Module):
         if "vector" in parts:
             out.append(MLP(self.vector_features, "tanh")(parts["vector"]))
         if "image" in parts:
-            out.append(ImageCNN()(parts["image"]))
+            out.append(ImageCNN(compute_dtype=self.image_dtype)(parts["image"]))
         return jnp.concatenate(out, axis=-1)

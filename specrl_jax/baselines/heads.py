@@ -23,10 +23,10 @@ def dense(features: int) -> nn.Dense:
 
 
 def embedding_actor_critic(parts: dict, embedding: jax.Array, num_actions: int,
-                           continuous: bool) -> PolicyOutput:
+                           continuous: bool, image_dtype: str = "float32") -> PolicyOutput:
     """The LTL2Action network body (RAD-Embeddings' too); call it inside a compact module.
     Observation encoders by kind (grid CNN, vector MLP [128, 64] ReLU, image CNN) concatenated
-    with the spec `embedding`; actor [64, 64, 64] ReLU then logits (or a Gaussian with Tanh mean
+    with the spec `embedding` (the image CNN's convolutions in `image_dtype`); actor [64, 64, 64] ReLU then logits (or a Gaussian with Tanh mean
     and state-dependent std); critic [64, 64] Tanh. Dense layers start as the original's."""
     out = []
     if "grid" in parts:
@@ -34,7 +34,7 @@ def embedding_actor_critic(parts: dict, embedding: jax.Array, num_actions: int,
     if "vector" in parts:
         out.append(nn.relu(dense(64)(nn.relu(dense(128)(parts["vector"])))))
     if "image" in parts:
-        out.append(ImageCNN()(parts["image"]))
+        out.append(ImageCNN(compute_dtype=image_dtype)(parts["image"]))
     emb = jnp.concatenate([*out, embedding], axis=-1)
     hidden = emb
     for width in (64, 64, 64):

@@ -320,6 +320,34 @@ def test_image_cnn_auto_takes_the_library_gradient_for_one_set_of_parameters_off
     assert ops("side_by_side", "cuda") == (layers, 2 * layers - 1)
 
 
+def test_image_cnn_in_bfloat16_keeps_float32_parameters_and_stays_near_float32():
+    """`compute_dtype="bfloat16"`: the convolutions run on bfloat16 operands, in the lowered GPU
+    program too (the gradient's included); parameters, output and gradients stay float32 and
+    within bfloat16's precision of the float32 network's."""
+    from specrl_jax.baselines.encoders import ImageCNN
+
+    images = jax.random.randint(jax.random.key(0), (4, 64, 64, 3), 0, 256).astype(jnp.uint8)
+    full, half = ImageCNN(), ImageCNN(compute_dtype="bfloat16")
+    params = full.init(jax.random.key(1), images)
+    assert jax.tree.structure(half.init(jax.random.key(1), images)) == jax.tree.structure(params)
+    loss = {name: jax.jit(jax.value_and_grad(lambda p, x, m=m: jnp.sum(jnp.sin(m.apply(p, x)))))
+            for name, m in (("full", full), ("half", half))}
+    (v32, g32), (v16, g16) = loss["full"](params, images), loss["half"](params, images)
+    out = half.apply(params, images)
+    assert out.dtype == jnp.float32 and out.shape == (4, 32)
+    np.testing.assert_allclose(out, full.apply(params, images), rtol=0.05, atol=0.02)
+    for a, b in zip(jax.tree.leaves(g16), jax.tree.leaves(g32)):
+        assert a.dtype == jnp.float32 and bool(jnp.all(jnp.isfinite(a)))
+        assert float(jnp.linalg.norm(a - b)) < 0.05 * float(jnp.linalg.norm(b))
+    text = jax.jit(jax.grad(lambda p, x: jnp.sum(half.apply(p, x)))).trace(params, images).lower(
+        lowering_platforms=("cuda",)).as_text()
+    convolutions = [line for line in text.splitlines() if "stablehlo.convolution" in line]
+    assert len(convolutions) > 2 * len(half.channels)
+    assert all("bf16" in line and "f32" not in line.split("->")[-1] for line in convolutions)
+    with pytest.raises(ValueError, match="compute_dtype='float16'; choose one of float32, bfloat16"):
+        ImageCNN(compute_dtype="float16").init(jax.random.key(0), images)
+
+
 def test_resume_gives_identical_continuation(tmp_path, monkeypatch):
     clock = iter(range(1000))  # every chunk takes 1 s: a resumed run's clock must read as a straight one's
     monkeypatch.setattr(runs, "time", SimpleNamespace(perf_counter=lambda: float(next(clock))))

@@ -128,3 +128,21 @@ def test_image_worlds_learn_their_seeds_in_turn_on_an_accelerator():
     assert experiment.default_overrides("gpu", None, "zone", "genz", images=True)["learn_seeds_in_turn"]
     for device, images in (("cpu", True), ("gpu", False)):
         assert "learn_seeds_in_turn" not in experiment.default_overrides(device, None, "zone", "genz", images)
+
+
+def test_every_method_takes_the_image_cnn_dtype_as_an_option():
+    """`--method-option image_dtype=bfloat16` reaches every method's image CNN; anything but
+    float32 / bfloat16 is refused with the accepted values, before any compilation."""
+    world, _ = specrl_jax.make("PointLTL0Vision-v0", image_size=64)
+    builders = {"genz": genz.network_for, "deepltl": deepltl.network_for,
+                "ltl2action": ltl2action.network_for, "gcrl": gcrl.network_for,
+                "rad": rad.network_for}
+    for name, network_for in builders.items():
+        assert "image_dtype" in get_method(name).options, name
+        assert network_for(world).image_dtype == "float32"
+        assert network_for(world, image_dtype="bfloat16").image_dtype == "bfloat16"
+        with pytest.raises(ValueError, match="image_dtype='float16'; choose one of float32, bfloat16"):
+            network_for(world, image_dtype="float16")
+    _, params = specrl_jax.make("PointLTL0Vision-v0", image_size=64)
+    assert genz.make_method(world, params, image_dtype="bfloat16").network.image_dtype == "bfloat16"
+    assert deepltl.make_method(world, params, image_dtype="bfloat16").network.image_dtype == "bfloat16"

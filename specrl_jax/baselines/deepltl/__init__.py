@@ -20,7 +20,7 @@ import jax.numpy as jnp
 
 from specrl_jax import families
 from specrl_jax.automata import label_symbol, pairs
-from specrl_jax.baselines.encoders import ObsEncoder, check_kinds, obs_parts
+from specrl_jax.baselines.encoders import ObsEncoder, check_image_dtype, check_kinds, obs_parts
 from specrl_jax.baselines.ppo.networks import (
     MLP,
     DiscreteHead,
@@ -101,11 +101,12 @@ class DeepLTLNetwork(nn.Module):
     continuous: bool = False
     embed_dim: int = 32
     set_features: tuple[int, ...] = (32, 32)
+    image_dtype: str = "float32"
 
     @nn.compact
     def __call__(self, obs: SequenceObs) -> PolicyOutput:
         seq = SequenceEncoder(self.num_symbols, self.embed_dim, self.set_features)(obs)
-        emb = jnp.concatenate([ObsEncoder()(obs.parts), seq], -1)
+        emb = jnp.concatenate([ObsEncoder(image_dtype=self.image_dtype)(obs.parts), seq], -1)
         hidden = MLP((64, 64, 64), "relu")(emb)
         if self.continuous:
             pi = EpsilonGaussianHead(self.num_actions)(hidden, obs.epsilon_allowed)
@@ -119,12 +120,13 @@ class DeepLTLNetwork(nn.Module):
         return PolicyOutput(pi, value, zeros, zeros)
 
 
-def network_for(world: Any, family: str = "letter") -> DeepLTLNetwork:
+def network_for(world: Any, family: str = "letter", image_dtype: str = "float32") -> DeepLTLNetwork:
     """DeepLTL's network for a world (sequence encoder sizes: Letter's, or Zone's elsewhere)."""
     check_kinds(world.obs_kinds)
     space, num_symbols = world.action_space, int(world.alphabet.shape[0])
     sizes = {"embed_dim": 32, "set_features": (32, 32)} if family == "letter" else {
         "embed_dim": 16, "set_features": (32, 16)}
+    sizes["image_dtype"] = check_image_dtype(image_dtype)
     if hasattr(space, "n"):
         return DeepLTLNetwork(int(space.n), num_symbols, **sizes)
     return DeepLTLNetwork(int(space.shape[0]), num_symbols, continuous=True, **sizes)
@@ -163,15 +165,17 @@ class DeepLTL(Method):
 
 
 def make_method(world: Any, params: Any, family: str | None = None,
-                stay_steps: int | None = None, twins_apart: bool = False) -> DeepLTL:
+                stay_steps: int | None = None, twins_apart: bool = False,
+                image_dtype: str = "float32") -> DeepLTL:
     """DeepLTL on any single-agent world, with the curriculum of `family` (letter or zone).
 
     `stay_steps`: the longest stay of the curriculum's reach-stay tasks, the others scaled with
     it (`specs.with_stay`; None: the original's 30 and 60 steps on Zone). `twins_apart`: no
     avoid set of the curriculum holds a proposition that names the same object as its reach
-    (the world's `same_object` pairs, e.g. the grippers-and-arm Arm's `arm_c` / `grippers_c`)."""
+    (the world's `same_object` pairs, e.g. the grippers-and-arm Arm's `arm_c` / `grippers_c`).
+    `image_dtype`: the image CNN's convolutions."""
     family = families.name_of(world, family)
-    network = network_for(world, family)
+    network = network_for(world, family, image_dtype)
     alphabet = jnp.asarray(world.alphabet, bool)
     name = curriculum_of("deepltl", family)
     if name is None:
@@ -327,5 +331,5 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: dict[str, st
 SPEC = MethodSpec(
     name="deepltl", title="DeepLTL", make_method=make_method, ppo_config=ppo_config,
     make_policy=make_policy, summarise=summarise, deterministic_infinite=lambda family: False,
-    options=("stay_steps", "twins_apart"),
+    options=("stay_steps", "twins_apart", "image_dtype"),
 )

@@ -34,7 +34,7 @@ import optax
 
 from specrl_jax import families
 from specrl_jax.baselines.compile_log import compile_logged
-from specrl_jax.baselines.encoders import ImageCNN, check_kinds, obs_parts
+from specrl_jax.baselines.encoders import ImageCNN, check_image_dtype, check_kinds, obs_parts
 from specrl_jax.baselines.gcrl import primitives as primitives_lib
 from specrl_jax.baselines.gcrl import search
 from specrl_jax.baselines.params_io import kept_params
@@ -84,6 +84,8 @@ class GoalEncoder(nn.Module):
     """Grid parts -> the LetterWorld CNN, images -> the camera CNN, vectors as they are (the
     original feeds the raw sensor vector); concatenated in the order grid, vector, image."""
 
+    image_dtype: str = "float32"
+
     @nn.compact
     def __call__(self, parts: Mapping[str, jax.Array]) -> jax.Array:
         out = []
@@ -92,7 +94,7 @@ class GoalEncoder(nn.Module):
         if "vector" in parts:
             out.append(parts["vector"].astype(jnp.float32))
         if "image" in parts:
-            out.append(ImageCNN()(parts["image"]))
+            out.append(ImageCNN(compute_dtype=self.image_dtype)(parts["image"]))
         return jnp.concatenate(out, axis=-1)
 
 
@@ -105,10 +107,12 @@ class GCRLNetwork(nn.Module):
     continuous: bool = False
     trunk: tuple[int, ...] = (512, 1024, 256)
     primitive_sensors: int = 0  # > 0: the actions are direction primitives on this many sensors
+    image_dtype: str = "float32"
 
     @nn.compact
     def __call__(self, obs: GoalObs) -> PolicyOutput:
-        x = jnp.concatenate([GoalEncoder()(obs.parts), obs.goal.astype(jnp.float32)], axis=-1)
+        parts = GoalEncoder(self.image_dtype)(obs.parts)
+        x = jnp.concatenate([parts, obs.goal.astype(jnp.float32)], axis=-1)
         x = dense(x.shape[-1], np.sqrt(2))(x)
         for width in self.trunk:
             x = nn.relu(dense(width, np.sqrt(2))(x))
@@ -138,17 +142,17 @@ def flat_state(parts: Mapping[str, jax.Array]) -> jax.Array:
 
 
 def network_for(world: Any, trunk: tuple[int, ...] = (512, 1024, 256),
-                hierarchical: bool = False) -> GCRLNetwork:
+                hierarchical: bool = False, image_dtype: str = "float32") -> GCRLNetwork:
     """The GCRL network for a world's action space; `hierarchical`: logits over the 4 direction
     primitives of a robot world (`gcrl_primitives`)."""
     check_kinds(world.obs_kinds)
-    space = world.action_space
+    space, image_dtype = world.action_space, check_image_dtype(image_dtype)
     if hierarchical:
         return GCRLNetwork(len(primitives_lib.DIRECTIONS), trunk=trunk,
-                           primitive_sensors=int(world.robot.ego_size))
+                           primitive_sensors=int(world.robot.ego_size), image_dtype=image_dtype)
     if hasattr(space, "n"):
-        return GCRLNetwork(int(space.n), trunk=trunk)
-    return GCRLNetwork(int(space.shape[0]), continuous=True, trunk=trunk)
+        return GCRLNetwork(int(space.n), trunk=trunk, image_dtype=image_dtype)
+    return GCRLNetwork(int(space.shape[0]), continuous=True, trunk=trunk, image_dtype=image_dtype)
 
 
 def uses_primitives(world: Any, family: str) -> bool:
@@ -176,13 +180,14 @@ class GCRL(Method):
 
 def make_method(world: Any, params: Any, family: str | None = None,
                 trunk: tuple[int, ...] = (512, 1024, 256),
-                value_features: tuple[int, ...] = (1024,) * 4, primitives: Any = None) -> GCRL:
+                value_features: tuple[int, ...] = (1024,) * 4, primitives: Any = None,
+                image_dtype: str = "float32") -> GCRL:
     """GCRL-LTL on any single-agent world: one-goal tasks over the world's propositions. Zone
     robots act through the 4 direction primitives `primitives` (untrained placeholders when
-    None: `prepare_training` trains them)."""
+    None: `prepare_training` trains them). `image_dtype`: the image CNN's convolutions."""
     family = families.name_of(world, family)
     hierarchical = uses_primitives(world, family)
-    network = network_for(world, trunk, hierarchical)
+    network = network_for(world, trunk, hierarchical, image_dtype)
     if hierarchical and primitives is None:
         primitives = primitives_lib.init_primitives(world, jax.random.key(0))
     acting = primitives_lib.PrimitiveWorld(world, primitives) if hierarchical else world
@@ -583,7 +588,7 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
 SPEC = MethodSpec(
     name="gcrl", title="GCRL-LTL", make_method=make_method, ppo_config=ppo_config,
     make_policy=make_policy, summarise=summarise,
-    options=("trunk", "value_features", "primitives"),
+    options=("trunk", "value_features", "primitives", "image_dtype"),
     policy_options=lambda method: {"value_network": method.value_network},
     prepare_training=prepare_training, finish_training=finish_training,
     param_shapes=param_shapes, coordinator_agent=coordinator_agent,

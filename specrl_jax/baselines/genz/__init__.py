@@ -26,7 +26,7 @@ import jax.numpy as jnp
 
 from specrl_jax import families
 from specrl_jax.automata import label_symbol, pairs
-from specrl_jax.baselines.encoders import ObsEncoder, check_kinds, obs_parts
+from specrl_jax.baselines.encoders import ObsEncoder, check_image_dtype, check_kinds, obs_parts
 from specrl_jax.baselines.ppo.networks import (
     MLP,
     DiscreteHead,
@@ -98,10 +98,11 @@ class GenZNetwork(nn.Module):
 
     num_actions: int = 4  # discrete actions, or the action dimension when `continuous`
     continuous: bool = False
+    image_dtype: str = "float32"
 
     @nn.compact
     def __call__(self, parts: Mapping[str, jax.Array]) -> PolicyOutput:
-        emb = ObsEncoder()(parts)
+        emb = ObsEncoder(image_dtype=self.image_dtype)(parts)
         hidden = MLP((64, 64, 64), "relu")(emb)
         pi = GaussianHead(self.num_actions)(hidden) if self.continuous else DiscreteHead(self.num_actions)(hidden)
         value = critic((64, 64), "softplus", final="softplus")(emb)[..., 0]
@@ -110,13 +111,13 @@ class GenZNetwork(nn.Module):
         return PolicyOutput(pi, value, cost_value, multiplier)
 
 
-def network_for(world: Any) -> GenZNetwork:
+def network_for(world: Any, image_dtype: str = "float32") -> GenZNetwork:
     """The GenZ-LTL network for a world's action space."""
     check_kinds(world.obs_kinds)
-    space = world.action_space
+    space, image_dtype = world.action_space, check_image_dtype(image_dtype)
     if hasattr(space, "n"):
-        return GenZNetwork(int(space.n))
-    return GenZNetwork(int(space.shape[0]), continuous=True)
+        return GenZNetwork(int(space.n), image_dtype=image_dtype)
+    return GenZNetwork(int(space.shape[0]), continuous=True, image_dtype=image_dtype)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,12 +135,13 @@ class GenZ(Method):
         return task_params
 
 
-def make_method(world: Any, params: Any, family: str | None = None, cost_step: float = -1.0) -> GenZ:
+def make_method(world: Any, params: Any, family: str | None = None, cost_step: float = -1.0,
+                image_dtype: str = "float32") -> GenZ:
     """GenZ-LTL on any single-agent world: subgoals reach 1 proposition and avoid up to 3 others
     (Letter: 2,784 tasks; Zone: 32), drawn from the family record's curriculum (genz/letter,
-    genz/zone: the same subgoal distribution)."""
+    genz/zone: the same subgoal distribution). `image_dtype`: the image CNN's convolutions."""
     family = families.name_of(world, family)
-    network = network_for(world)
+    network = network_for(world, image_dtype)
     alphabet = jnp.asarray(world.alphabet, bool)
     name = curriculum_of("genz", family)
     if name is None:
@@ -355,7 +357,7 @@ def make_policy(network: nn.Module, alphabet: jax.Array, obs_kinds: Mapping[str,
 
 SPEC = MethodSpec(
     name="genz", title="GenZ-LTL", make_method=make_method, ppo_config=ppo_config,
-    make_policy=make_policy, summarise=summarise, options=("cost_step",),
+    make_policy=make_policy, summarise=summarise, options=("cost_step", "image_dtype"),
     deterministic=lambda family: True,  # the reference evaluates with mode actions everywhere
     # 80 epochs of 32 minibatches on a 65,536-sample update spend most of an accelerator's time
     # for no gain (docs/fidelity.md: the Letter and Zone PPO shapes)

@@ -165,8 +165,8 @@ def make_method(world: Any, params: Any, family: str | None = None,
                 formulas: Sequence[str] | None = None,
                 num_formulas: int = 1024, seed: int = 0, sampler: str | None = None,
                 encoder: Any = None, freeze_encoder: bool = False, pretrain_steps: int = 0,
-                stages: Sequence[int] | None = None, network: nn.Module | None = None
-                ) -> LTL2Action:
+                stages: Sequence[int] | None = None, network: nn.Module | None = None,
+                image_dtype: str = "float32") -> LTL2Action:
     """LTL2Action on any single-agent world, progressed on the device: the given `formulas`
     (drawn uniformly, or by curriculum stages of sizes `stages`), or `training_formulas(...,
     sampler)` (default: the family's task source; a curriculum's stages advance on the episodes'
@@ -176,7 +176,8 @@ def make_method(world: Any, params: Any, family: str | None = None,
     `pretrain.save_encoder`) the network starts from; `freeze_encoder` keeps the R-GCN
     fixed in training (the original's `--freeze-ltl`); `pretrain_steps` > 0 (without `encoder`)
     has `prepare_training` pretrain it on the symbol task over the same formulas first (the
-    original's LTLBootcamp, `--pretrained-gnn`); `network` replaces the LTL2Action network.
+    original's LTLBootcamp, `--pretrained-gnn`); `network` replaces the LTL2Action network;
+    `image_dtype`: the image CNN's convolutions.
     """
     family = families.name_of(world, family)
     if pretrain_steps < 0:
@@ -188,7 +189,7 @@ def make_method(world: Any, params: Any, family: str | None = None,
             stages = [len(stage) for stage in by_stage]
     if isinstance(encoder, (str, os.PathLike)):
         encoder = pretrain.load_encoder(encoder, len(world.propositions))
-    network = network_for(world, freeze_encoder) if network is None else network
+    network = network_for(world, freeze_encoder, image_dtype) if network is None else network
     alphabet = np.asarray(world.alphabet, bool)
     key = (tuple(formulas), tuple(world.propositions), alphabet.tobytes(), alphabet.shape)
     if key not in _BANKS:  # training, evaluation and loading each build the method once
@@ -383,7 +384,7 @@ SPEC = MethodSpec(
     name="ltl2action", title="LTL2Action", make_method=make_method, ppo_config=ppo_config,
     make_policy=make_policy, summarise=summarise,
     options=("formulas", "num_formulas", "seed", "sampler", "encoder", "freeze_encoder",
-             "pretrain_steps", "stages", "network"),
+             "pretrain_steps", "stages", "network", "image_dtype"),
     prepare_training=prepare_training, policy_takes_suites=True,
     pretrain=pretrain_for_world, shipped_encoder=pretrain.shipped_encoder_path,
 )

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from specrl_jax.baselines.encoders import check_kinds
+from specrl_jax.baselines.encoders import check_image_dtype, check_kinds
 from specrl_jax.baselines.heads import dense as _dense
 from specrl_jax.baselines.heads import embedding_actor_critic
 from specrl_jax.baselines.ppo.networks import PolicyOutput
@@ -210,6 +210,7 @@ class LTL2ActionNetwork(nn.Module):
     propositions: tuple[str, ...]
     continuous: bool = False
     freeze_encoder: bool = False
+    image_dtype: str = "float32"
 
     @nn.compact
     def __call__(self, obs: FormulaObs) -> PolicyOutput:
@@ -217,17 +218,21 @@ class LTL2ActionNetwork(nn.Module):
             RGCNEncoder(num_features(len(self.propositions)), name=ENCODER), obs)
         if self.freeze_encoder:
             formula = jax.lax.stop_gradient(formula)
-        return embedding_actor_critic(obs.parts, formula, self.num_actions, self.continuous)
+        return embedding_actor_critic(obs.parts, formula, self.num_actions, self.continuous,
+                                      self.image_dtype)
 
 
-def network_for(world: Any, freeze_encoder: bool = False) -> LTL2ActionNetwork:
+def network_for(world: Any, freeze_encoder: bool = False,
+                image_dtype: str = "float32") -> LTL2ActionNetwork:
     """The LTL2Action network for a world's action space and propositions."""
     check_kinds(world.obs_kinds)
     space, props = world.action_space, tuple(world.propositions)
+    image_dtype = check_image_dtype(image_dtype)
     if hasattr(space, "n"):
-        return LTL2ActionNetwork(int(space.n), props, freeze_encoder=freeze_encoder)
+        return LTL2ActionNetwork(int(space.n), props, freeze_encoder=freeze_encoder,
+                                 image_dtype=image_dtype)
     return LTL2ActionNetwork(int(space.shape[0]), props, continuous=True,
-                             freeze_encoder=freeze_encoder)
+                             freeze_encoder=freeze_encoder, image_dtype=image_dtype)
 
 
 def with_encoder(params: Any, encoder: Any) -> Any:

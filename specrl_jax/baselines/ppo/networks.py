@@ -81,6 +81,10 @@ class PatchConv(nn.Module):
       patch matmul on XLA:CPU. Seeds that learn in turn (`PPOConfig.learn_seeds_in_turn`) take
       the library's gradient, seeds side by side the patch matmul's.
     "library_forward" and "auto" differentiate in reverse mode only, once (`jax.custom_vjp`).
+
+    `compute_dtype` "bfloat16" runs the convolution on bfloat16 copies of the input and the
+    kernel with a bfloat16 output, so the gradient's convolutions run in bfloat16 too (half the
+    memory traffic); the parameters, the bias and what follows stay float32.
     """
 
     features: int
@@ -88,15 +92,21 @@ class PatchConv(nn.Module):
     stride: int = 1
     padding: int = 0
     conv: str = "patch"
+    compute_dtype: str = "float32"
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         k = self.size
         if self.conv not in CONVOLUTIONS:
             raise ValueError(f"conv={self.conv!r}; choose one of {', '.join(CONVOLUTIONS)}")
+        if self.compute_dtype not in COMPUTE_DTYPES:
+            raise ValueError(f"compute_dtype={self.compute_dtype!r}; choose one of "
+                             f"{', '.join(COMPUTE_DTYPES)}")
         kernel = self.param("kernel", nn.initializers.lecun_normal(), (k, k, x.shape[-1], self.features))
         bias = self.param("bias", nn.initializers.zeros_init(), (self.features,))
-        return CONVOLUTIONS[self.conv](x, kernel, self.stride, self.padding) + bias
+        dtype = COMPUTE_DTYPES[self.compute_dtype]
+        y = CONVOLUTIONS[self.conv](x.astype(dtype), kernel.astype(dtype), self.stride, self.padding)
+        return y.astype(jnp.float32) + bias
 
 
 def patch_conv(x: jax.Array, kernel: jax.Array, stride: int, padding: int) -> jax.Array:
@@ -180,6 +190,7 @@ auto_conv.defvjp(_auto_forward, _auto_backward)
 #: `PatchConv.conv`'s choices
 CONVOLUTIONS: dict[str, Callable] = {"patch": patch_conv, "library_forward": library_forward_conv,
                                      "auto": auto_conv}
+COMPUTE_DTYPES = {"float32": jnp.float32, "bfloat16": jnp.bfloat16}
 
 
 def patch_matrix(x: jax.Array, size: int, stride: int, padding: int) -> jax.Array:

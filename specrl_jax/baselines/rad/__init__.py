@@ -40,7 +40,7 @@ import numpy as np
 from specrl_jax import families, specs
 from specrl_jax.automata import rad_sampler
 from specrl_jax.automata.rad_sampler import DFABank
-from specrl_jax.baselines.encoders import check_kinds, obs_parts
+from specrl_jax.baselines.encoders import check_image_dtype, check_kinds, obs_parts
 from specrl_jax.baselines.heads import embedding_actor_critic
 from specrl_jax.baselines.ppo.networks import PolicyOutput
 from specrl_jax.baselines.ppo.train import Method, PPOConfig, world_config
@@ -81,19 +81,21 @@ class RADNetwork(nn.Module):
     num_actions: int  # discrete actions, or the action dimension when `continuous`
     encoder: str
     continuous: bool = False
+    image_dtype: str = "float32"
 
     @nn.compact
     def __call__(self, obs: RADObs) -> PolicyOutput:
-        return embedding_actor_critic(obs.parts, obs.embedding, self.num_actions, self.continuous)
+        return embedding_actor_critic(obs.parts, obs.embedding, self.num_actions, self.continuous,
+                                      self.image_dtype)
 
 
-def network_for(world: Any, encoder: str = "letter") -> RADNetwork:
+def network_for(world: Any, encoder: str = "letter", image_dtype: str = "float32") -> RADNetwork:
     """The RAD network for a world's action space, reading the frozen encoder `encoder`."""
     check_kinds(world.obs_kinds)
-    space = world.action_space
+    space, image_dtype = world.action_space, check_image_dtype(image_dtype)
     if hasattr(space, "n"):
-        return RADNetwork(int(space.n), encoder)
-    return RADNetwork(int(space.shape[0]), encoder, continuous=True)
+        return RADNetwork(int(space.n), encoder, image_dtype=image_dtype)
+    return RADNetwork(int(space.shape[0]), encoder, continuous=True, image_dtype=image_dtype)
 
 
 def frozen_encoder(encoder_params: Any, num_layers: int = 8,
@@ -227,14 +229,15 @@ def make_method(world: Any, params: Any, family: str | None = None, bank: DFABan
                 bank_size: int = DEFAULT_BANK_SIZE, seed: int = 0,
                 encoder: str | None = None, encoder_params: Any = None,
                 encoder_layers: int = 8, max_table_rows: int = rad_table.MAX_TABLE_ROWS,
-                sampler: str | None = None, per_stage: int = CURRICULUM_DRAWS) -> RAD:
+                sampler: str | None = None, per_stage: int = CURRICULUM_DRAWS,
+                image_dtype: str = "float32") -> RAD:
     """RAD on any single-agent world: the training tasks are `bank` (drawn uniformly) if given,
     else by `sampler` (default: the family's task source) a bank of `bank_size` RAD conjunctions ("rad")
     or `family`'s curriculum as DFAs, `per_stage` draws of a sampled stage ("curriculum"),
     embedded by the frozen encoder `encoder` (default: the family's `formula_encoder`; or
     `encoder_params` of `encoder_layers` rounds). The embeddings of the bank's reachable states
     are encoded once into a table, or every step where it would exceed `max_table_rows` rows
-    (`bank_embedder`)."""
+    (`bank_embedder`). `image_dtype`: the image CNN's convolutions."""
     family = families.name_of(world, family)
     alphabet = np.asarray(world.alphabet, bool)
     if encoder is None:  # the grippers-only arm's alphabet is ZoneEnv's: it reads the Zone encoder
@@ -272,7 +275,7 @@ def make_method(world: Any, params: Any, family: str | None = None, bank: DFABan
     else:
         source = CurriculumDFASource(bank, world.alphabet, curriculum, stage_sizes)
     task = TaskEnv(world, source, observe)
-    return RAD(TaskTrainEnv(task, params, signals), network_for(world, encoder))
+    return RAD(TaskTrainEnv(task, params, signals), network_for(world, encoder, image_dtype))
 
 
 def pretrain_for_world(world: Any, family: str, key: jax.Array, steps: int,
@@ -349,7 +352,7 @@ SPEC = MethodSpec(
     name="rad", title="RAD-Embeddings", make_method=make_method, ppo_config=ppo_config,
     make_policy=make_policy, summarise=summarise,
     options=("bank", "bank_size", "seed", "encoder", "encoder_params", "encoder_layers",
-             "max_table_rows", "sampler", "per_stage"),
+             "max_table_rows", "sampler", "per_stage", "image_dtype"),
     usable_suites=usable_suites, pretrain=pretrain_for_world,
     shipped_encoder=rad_pretrain.encoder_path, encoder_per_symbol=True,
 )
