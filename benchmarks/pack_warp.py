@@ -5,9 +5,9 @@ The wheel is 149 MB and unpacks to 390 MB. What a CUDA machine never loads is le
 JIT (`warp/bin/warp-clang.so`, without which Warp runs with CUDA devices alone), the examples and
 the tests. The CUDA fat binary in `warp/bin/warp.so` holds Warp's own kernels as machine code for
 seven GPU architectures and as PTX; the machine code of every architecture but `--sm` is zeroed in
-place (the file keeps its layout, the driver picks the `--sm` code and the PTX stays for any
-other GPU), which the compressor then drops. xz with the x86 branch filter packs the rest to
-about 59 MB.
+place (the file keeps its layout, and the driver picks the `--sm` code), which the compressor then
+drops. The result is for GPUs of that one architecture (90: H100, H200): pack again with another
+`--sm` for another GPU. xz with the x86 branch filter packs the rest to about 59 MB.
 
 Usage: python benchmarks/pack_warp.py .whl/warp_lang-1.19.0-*.whl   (writes .warp/warp.tar.xz.part1of2 ...)
 On the GPU machine `benchmarks/device_prelude.sh` keeps each part it is carried and unpacks the
@@ -44,7 +44,8 @@ def section(elf: bytes, name: str) -> tuple[int, int]:
 
 def thin_fatbin(elf: bytearray, keep_sm: int) -> dict[int, int]:
     """Zero, in place, the machine code of every architecture but `keep_sm` in the fat binaries
-    of `elf`'s `.nv_fatbin` section; returns bytes zeroed per architecture."""
+    of `elf`'s `.nv_fatbin` section; returns bytes zeroed per architecture. The zeroed entries
+    keep their headers, so the result loads on a `keep_sm` GPU only."""
     start, size = section(bytes(elf), ".nv_fatbin")
     zeroed: dict[int, int] = {}
     seen: set[int] = set()
@@ -52,20 +53,25 @@ def thin_fatbin(elf: bytearray, keep_sm: int) -> dict[int, int]:
     while pos + 16 <= end:
         magic, _, header, fat_size = struct.unpack_from("<IHHQ", elf, pos)
         if magic != FATBIN_MAGIC:
-            pos += 8  # containers are 8-byte aligned
+            pos += 8  # containers start 8-byte aligned in the section
             continue
         entry, container_end = pos + header, pos + header + fat_size
+        if header < 16 or container_end > end:
+            raise ValueError(f"a fat binary container at byte {pos} runs past its section "
+                             f"(or has a header of {header} bytes)")
         while entry < container_end:
             kind, _, entry_header, payload = struct.unpack_from("<HHIQ", elf, entry)
             sm, = struct.unpack_from("<I", elf, entry + 28)
+            body = entry + entry_header
+            if entry_header < 32 or body + payload > container_end:
+                raise ValueError(f"a fat binary entry at byte {entry} runs past its container")
             if kind == ELF_CODE:
                 seen.add(sm)
                 if sm != keep_sm:
-                    body = entry + entry_header
                     elf[body:body + payload] = bytes(payload)
                     zeroed[sm] = zeroed.get(sm, 0) + payload
-            entry += entry_header + payload
-        pos = container_end
+            entry = body + payload
+        pos = start + -(-(container_end - start) // 8) * 8
     if keep_sm not in seen:
         raise ValueError(f"no machine code for sm_{keep_sm} in the fat binaries; found sm_{sorted(seen)}")
     return zeroed
@@ -93,6 +99,8 @@ def pack(wheel: Path, keep_sm: int) -> bytes:
 
 def split(archive: bytes, first_mb: float, part_mb: float) -> list[bytes]:
     """`archive` cut into a first part of `first_mb` MB and further parts of `part_mb` MB."""
+    if first_mb <= 0 or part_mb <= 0:
+        raise ValueError(f"part sizes must be positive, got {first_mb} and {part_mb} MB")
     cuts, at, size = [], 0, int(first_mb * 1e6)
     while at < len(archive):
         cuts.append(archive[at:at + size])

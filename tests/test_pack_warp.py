@@ -6,6 +6,7 @@ from __future__ import annotations
 import importlib.util
 import io
 import lzma
+import os
 import struct
 import subprocess
 import sys
@@ -77,6 +78,20 @@ def test_thinning_refuses_an_architecture_with_no_machine_code():
         pack_warp.thin_fatbin(_elf(_fatbin_section()), keep_sm=86)
 
 
+def test_thinning_refuses_malformed_fat_binaries_instead_of_looping_or_growing_the_file():
+    entry = _entry(CODE, 80, b"A" * 40)
+    overlong = bytearray(entry)
+    struct.pack_into("<Q", overlong, 8, 10_000)  # a payload past its container
+    empty_header = bytearray(_container(entry))
+    struct.pack_into("<H", empty_header, 6, 0)  # a container header of 0 bytes
+    for section_data in (_container(bytes(overlong)), bytes(empty_header)):
+        elf = _elf(section_data)
+        size = len(elf)
+        with pytest.raises(ValueError, match="runs past its"):
+            pack_warp.thin_fatbin(elf, keep_sm=90)
+        assert len(elf) == size
+
+
 def test_pack_leaves_out_the_cpu_jit_examples_and_tests(tmp_path):
     wheel = tmp_path / "warp_lang-0-py3-none-manylinux_2_28_x86_64.whl"
     with zipfile.ZipFile(wheel, "w") as zf:
@@ -111,3 +126,55 @@ def test_script_writes_numbered_parts(tmp_path):
     joined = b"".join((out / f"warp.tar.xz.part{k}of{n}").read_bytes() for k in range(1, n + 1))
     with tarfile.open(fileobj=io.BytesIO(lzma.decompress(joined))) as tar:
         assert "warp/__init__.py" in tar.getnames()
+
+
+def _source_prelude(repo, site) -> subprocess.CompletedProcess:
+    script = f'source {BENCHMARKS / "device_prelude.sh"} || exit 7; echo "PYTHONPATH=$PYTHONPATH"'
+    env = {"PATH": os.environ["PATH"], "SPECRL_SITE": str(site)}
+    return subprocess.run(["bash", "-c", script], cwd=repo, env=env, capture_output=True, text=True)
+
+
+def test_the_prelude_unpacks_warp_once_every_part_has_arrived(tmp_path):
+    """Parts carried one per call: nothing installed until the last arrives, a leftover part of
+    another packing dropped, then the archive unpacked once; a corrupt set refused."""
+    archive = io.BytesIO()
+    with tarfile.open(fileobj=archive, mode="w") as tar:
+        for name, text in (("warp/__init__.py", b"version = 1\n"), ("warp/bin/warp.so", b"\x7fELF" * 999)):
+            info = tarfile.TarInfo(name)
+            info.size = len(text)
+            tar.addfile(info, io.BytesIO(text))
+    parts = pack_warp.split(lzma.compress(archive.getvalue(), format=lzma.FORMAT_XZ), 100e-6, 100e-6)
+    n = len(parts)
+    assert n >= 2
+    repo, site = tmp_path / "repo", tmp_path / "site"
+    (repo / ".whl").mkdir(parents=True)  # no wheels: the site's install is marked done below
+    site.mkdir()
+    (site / ".installed").touch()
+    leftovers = tmp_path / "site.warp_parts"
+    leftovers.mkdir()
+    (leftovers / f"warp.tar.xz.part1of{n + 1}").write_bytes(b"another packing")
+    (repo / ".warp").mkdir()
+    for k, part in enumerate(parts, 1):
+        for old in (repo / ".warp").iterdir():
+            old.unlink()
+        (repo / ".warp" / f"warp.tar.xz.part{k}of{n}").write_bytes(part)
+        done = _source_prelude(repo, site)
+        assert done.returncode == 0, done.stderr
+        assert f"PYTHONPATH={site}:{repo}" in done.stdout
+        installed = (site / ".warp_installed").exists()
+        assert installed == (k == n), (k, done.stdout)
+        if k < n:
+            assert f"{k} of {n} parts here" in done.stdout
+    assert (site / "warp" / "__init__.py").read_bytes() == b"version = 1\n"
+    assert sorted(p.name for p in leftovers.iterdir()) == [f"warp.tar.xz.part{k}of{n}" for k in range(1, n + 1)]
+    # a set whose last part is corrupt (another packing's) unpacks nothing
+    fresh = tmp_path / "fresh"
+    fresh.mkdir()
+    (fresh / ".installed").touch()
+    for k, part in enumerate(parts, 1):
+        for old in (repo / ".warp").iterdir():
+            old.unlink()
+        (repo / ".warp" / f"warp.tar.xz.part{k}of{n}").write_bytes(part if k < n else part[::-1])
+        done = _source_prelude(repo, fresh)
+    assert done.returncode == 7 and "did not unpack" in done.stderr
+    assert not (fresh / ".warp_installed").exists() and not (fresh / "warp").exists()

@@ -9,7 +9,7 @@ import pytest
 import specrl_jax
 from specrl_jax import automata, families
 from specrl_jax.baselines import deepltl, gcrl, genz, ltl2action, rad
-from specrl_jax.baselines.ppo import make_train
+from specrl_jax.baselines.ppo import PPOConfig, make_train
 from specrl_jax.baselines.rad import pretrain as rad_pretrain
 from specrl_jax.baselines.spec import get_method
 from specrl_jax.baselines.train_env import TaskTrainEnv
@@ -130,19 +130,27 @@ def test_image_worlds_learn_their_seeds_in_turn_on_an_accelerator():
         assert "learn_seeds_in_turn" not in experiment.default_overrides(device, None, "zone", "genz", images)
 
 
-def test_every_method_takes_the_image_cnn_dtype_as_an_option():
-    """`--method-option image_dtype=bfloat16` reaches every method's image CNN; anything but
-    float32 / bfloat16 is refused with the accepted values, before any compilation."""
-    world, _ = specrl_jax.make("PointLTL0Vision-v0", image_size=64)
-    builders = {"genz": genz.network_for, "deepltl": deepltl.network_for,
-                "ltl2action": ltl2action.network_for, "gcrl": gcrl.network_for,
-                "rad": rad.network_for}
-    for name, network_for in builders.items():
-        assert "image_dtype" in get_method(name).options, name
-        assert network_for(world).image_dtype == "float32"
-        assert network_for(world, image_dtype="bfloat16").image_dtype == "bfloat16"
+def test_every_method_takes_the_image_cnn_dtype_as_an_option(monkeypatch):
+    """`--method-option image_dtype=bfloat16` reaches every method's image CNN: the network each
+    method trains (GCRL-LTL's after its primitives are trained, too) runs its convolutions on
+    bfloat16 operands; anything but float32 / bfloat16 is refused with the accepted values."""
+    world, params = specrl_jax.make("PointLTL0Vision-v0", image_size=64)
+    key = jax.random.key(0)
+    monkeypatch.setattr(gcrl.primitives_lib, "cached_primitives",
+                        lambda world, params, key, config, primitives, log: primitives)
+    for name in ("genz", "deepltl", "ltl2action", "gcrl", "rad"):
+        spec = get_method(name)
+        assert "image_dtype" in spec.options, name
         with pytest.raises(ValueError, match="image_dtype='float16'; choose one of float32, bfloat16"):
-            network_for(world, image_dtype="float16")
-    _, params = specrl_jax.make("PointLTL0Vision-v0", image_size=64)
-    assert genz.make_method(world, params, image_dtype="bfloat16").network.image_dtype == "bfloat16"
-    assert deepltl.make_method(world, params, image_dtype="bfloat16").network.image_dtype == "bfloat16"
+            spec.make_method(world, params, "zone", image_dtype="float16")
+        method = spec.make_method(world, params, "zone", image_dtype="bfloat16")
+        if name == "gcrl":
+            method = gcrl.prepare_training(method, key, PPOConfig(total_timesteps=1_500),
+                                            log=lambda _: None)
+        obs, _ = method.env.reset(key, method.init_task_params())
+        variables = method.network.init(key, obs)
+        text = jax.jit(method.network.apply).trace(variables, obs).lower(
+            lowering_platforms=("cuda",)).as_text()
+        convolutions = [line for line in text.splitlines() if "stablehlo.convolution" in line]
+        assert len(convolutions) == 5, (name, len(convolutions))  # the image CNN's layers
+        assert all("xbf16>" in line.split("->")[-1] for line in convolutions), name

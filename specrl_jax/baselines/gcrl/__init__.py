@@ -376,7 +376,8 @@ def prepare_training(method: GCRL, key: jax.Array, config: PPOConfig,
         primitives_lib.ppo_config(steps), method.primitives, log), method.primitives,
         "direction primitives", log)
     return make_method(method.world, method.env.params, method.family, method.network.trunk,
-                       method.value_network.features, primitives=trained)
+                       method.value_network.features, primitives=trained,
+                       image_dtype=method.network.image_dtype)
 
 
 def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig,

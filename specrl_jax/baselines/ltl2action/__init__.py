@@ -177,7 +177,8 @@ def make_method(world: Any, params: Any, family: str | None = None,
     fixed in training (the original's `--freeze-ltl`); `pretrain_steps` > 0 (without `encoder`)
     has `prepare_training` pretrain it on the symbol task over the same formulas first (the
     original's LTLBootcamp, `--pretrained-gnn`); `network` replaces the LTL2Action network;
-    `image_dtype`: the image CNN's convolutions.
+    `image_dtype`: the image CNN's convolutions (of the LTL2Action network; a given `network`
+    keeps its own).
     """
     family = families.name_of(world, family)
     if pretrain_steps < 0:
