@@ -229,10 +229,10 @@ TRAIN_RATES: dict[tuple[str, str], tuple[float, str]] = {
     ("PandaLTLReach0Joints-v0", "rad"): (113_980, "H200, 5 x 15M, compile and a resume included"),
     ("PointLTL0Vision-v0", "genz"): (68_361, "H200, 5 x 15M at 64 x 64, compile and two resumes included"),
     ("PointLTL0Vision-v0", "rad"): (34_009, "H200, 5 seeds at 64 x 64, the loop's rate after compilation"),
-    ("PointLTL0Vision-v0", "deepltl"): (55_900, "H200, 5 seeds at 64 x 64 learning in turn, the loop's "
-                                                "rate after compilation: updates 11-81 and 92-162 of "
-                                                "a partial run (benchmarks/results/"
-                                                "pointltl0vision64_deepltl_partial_metrics_h200.jsonl)"),
+    ("PointLTL0Vision-v0", "deepltl"): (55_900, (
+        "H200, 5 seeds at 64 x 64 learning in turn, the loop's rate after compilation: updates "
+        "11-81 and 92-162 of a partial run (pointltl0vision64_deepltl_partial_metrics_h200.jsonl "
+        "in benchmarks/results)")),
 }
 #: env ID (without variant suffix) -> measured auto-reset env-steps/s on one GPU, best batch
 ENV_RATES: dict[str, tuple[float, str]] = {
