@@ -87,9 +87,9 @@ class ImageCNN(nn.Module):
 
 
 class ObsEncoder(nn.Module):
-    """Embeds the parts of `obs_parts`: grid -> CNN, vector -> MLP `vector_features` Tanh, image
-    -> CNN (its convolutions in `image_dtype`); the embeddings concatenated (in the order grid,
-    vector, image)."""
+    """Embeds the parts of `obs_parts`: grid -> CNN, vector -> MLP `vector_features` Tanh (no
+    features: the vector as it is), image -> CNN (its convolutions in `image_dtype`); the
+    embeddings concatenated (in the order grid, vector, image)."""
 
     vector_features: tuple[int, ...] = (128, 64)
     image_dtype: str = "float32"

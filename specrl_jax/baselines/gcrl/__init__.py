@@ -34,14 +34,13 @@ import optax
 
 from specrl_jax import families
 from specrl_jax.baselines.compile_log import compile_logged
-from specrl_jax.baselines.encoders import ImageCNN, check_image_dtype, check_kinds, obs_parts
+from specrl_jax.baselines.encoders import ObsEncoder, check_image_dtype, check_kinds, obs_parts
 from specrl_jax.baselines.gcrl import primitives as primitives_lib
 from specrl_jax.baselines.gcrl import search
 from specrl_jax.baselines.params_io import kept_params
 from specrl_jax.baselines.ppo.networks import (
     DiscreteHead,
     GaussianHead,
-    LetterCNN,
     PolicyOutput,
 )
 from specrl_jax.baselines.ppo.rollout import reset_batch
@@ -80,24 +79,6 @@ def dense(features: int, gain: float) -> nn.Dense:
     return nn.Dense(features, kernel_init=nn.initializers.orthogonal(gain))
 
 
-class GoalEncoder(nn.Module):
-    """Grid parts -> the LetterWorld CNN, images -> the camera CNN, vectors as they are (the
-    original feeds the raw sensor vector); concatenated in the order grid, vector, image."""
-
-    image_dtype: str = "float32"
-
-    @nn.compact
-    def __call__(self, parts: Mapping[str, jax.Array]) -> jax.Array:
-        out = []
-        if "grid" in parts:
-            out.append(LetterCNN()(parts["grid"]))
-        if "vector" in parts:
-            out.append(parts["vector"].astype(jnp.float32))
-        if "image" in parts:
-            out.append(ImageCNN(compute_dtype=self.image_dtype)(parts["image"]))
-        return jnp.concatenate(out, axis=-1)
-
-
 class GCRLNetwork(nn.Module):
     """Observation ++ goal vector -> linear features (as wide as the input) -> shared trunk
     [512, 1024, 256] ReLU -> logits (or a Gaussian) and value. SB3's orthogonal init: gain
@@ -111,7 +92,10 @@ class GCRLNetwork(nn.Module):
 
     @nn.compact
     def __call__(self, obs: GoalObs) -> PolicyOutput:
-        parts = GoalEncoder(self.image_dtype)(obs.parts)
+        # grid parts -> the LetterWorld CNN, images -> the camera CNN, vectors as they are (the
+        # original feeds the raw sensor vector)
+        parts = ObsEncoder(vector_features=(), image_dtype=self.image_dtype,
+                           name="GoalEncoder_0")(obs.parts)
         x = jnp.concatenate([parts, obs.goal.astype(jnp.float32)], axis=-1)
         x = dense(x.shape[-1], np.sqrt(2))(x)
         for width in self.trunk:
