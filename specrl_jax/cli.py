@@ -541,7 +541,10 @@ def pretrain_command(args: argparse.Namespace) -> int:
     arg("--store", default=None, help="results store directory (default: the package's)"),
     arg("--gpus", type=positive_int, default=None,
         help="cells run side by side (default: the visible GPUs; 1: one after the other)"),
-    arg("--seeds", type=positive_int, default=None, help="smoke runs: seeds per cell (default 5)"),
+    arg("--seeds", type=positive_int, default=None,
+        help="seeds per cell (default 5): fewer for smoke runs, or to store a cell that does not "
+             "fit the GPU time as partial (the report says n/5 seeds; a later full run trains "
+             "all five)"),
     arg("--total-steps", type=positive_int, default=None, help="smoke runs: env steps per seed"),
     arg("--episodes", type=positive_int, default=None, help="smoke runs: episodes per spec and seed"),
     arg("--num-envs", type=positive_int, default=None, help="smoke runs: envs per seed"),

@@ -601,7 +601,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="results store directory (default: the package's)")
     parser.add_argument("--gpus", type=int, default=None,
                         help="cells side by side (default: the visible GPUs; 1: in turn)")
-    parser.add_argument("--seeds", type=int, default=None, help="smoke runs: seeds per cell")
+    parser.add_argument("--seeds", type=int, default=None,
+                        help="seeds per cell (default 5): fewer for smoke runs, or to store a cell "
+                             "that does not fit the GPU time as partial (the report says n/5 "
+                             "seeds; a later full run trains all five)")
     parser.add_argument("--total-steps", type=int, default=None,
                         help="smoke runs: env steps per seed")
     parser.add_argument("--episodes", type=int, default=None,
