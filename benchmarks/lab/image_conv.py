@@ -101,13 +101,9 @@ def patches_bf16_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
 
 
 def library_bf16_conv(x: jax.Array, kernel: jax.Array) -> jax.Array:
-    networks.conv_output_size(x.shape[-3:-1], SIZE, STRIDE, PADDING)
-    # a bfloat16 output (cast after): the cotangent reaches the gradient's convolutions in
-    # bfloat16 too, where a float32 output would cast their operands back to float32
-    y = jax.lax.conv_general_dilated(
-        x.reshape(-1, *x.shape[-3:]).astype(jnp.bfloat16), kernel.astype(jnp.bfloat16),
-        (STRIDE, STRIDE), ((PADDING, PADDING),) * 2, dimension_numbers=("NHWC", "HWIO", "NHWC"))
-    return y.astype(jnp.float32).reshape(*x.shape[:-3], *y.shape[1:])
+    # as `PatchConv(compute_dtype="bfloat16")`: a bfloat16 output (cast after), so the cotangent
+    # reaches the gradient's convolutions in bfloat16 too
+    return library_conv(x.astype(jnp.bfloat16), kernel.astype(jnp.bfloat16)).astype(jnp.float32)
 
 
 def cnn_with(conv: Callable[[jax.Array, jax.Array], jax.Array]) -> Callable:

@@ -14,7 +14,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from specrl_jax.baselines.ppo.networks import MLP, LetterCNN, PatchConv
+from specrl_jax.baselines.ppo.networks import COMPUTE_DTYPES, MLP, LetterCNN, PatchConv
 
 #: world observation kinds -> the encoder part they feed
 PART_OF_KIND = {"grid": "grid", "lidar": "vector", "range_bearing": "vector", "vector": "vector",
@@ -31,14 +31,11 @@ def check_kinds(obs_kinds: Mapping[str, str]) -> None:
         )
 
 
-#: `image_dtype` values: the image CNN's convolutions in float32 (the original's) or bfloat16
-IMAGE_DTYPES = ("float32", "bfloat16")
-
-
 def check_image_dtype(image_dtype: str) -> str:
-    """`image_dtype`, or a clear error naming the accepted values."""
-    if image_dtype not in IMAGE_DTYPES:
-        raise ValueError(f"image_dtype={image_dtype!r}; choose one of {', '.join(IMAGE_DTYPES)} "
+    """`image_dtype` (the image CNN's convolutions: float32, the original's, or bfloat16), or a
+    clear error naming the accepted values."""
+    if image_dtype not in COMPUTE_DTYPES:
+        raise ValueError(f"image_dtype={image_dtype!r}; choose one of {', '.join(COMPUTE_DTYPES)} "
                          "(the image CNN's convolutions; bfloat16 halves their memory traffic)")
     return image_dtype
 
