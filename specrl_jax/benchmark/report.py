@@ -179,6 +179,9 @@ def world_page(env_id: str, rows: Sequence[tuple[Cell, dict[str, Any]]], store: 
     notes = [f"- {method_label(c)}: {r['params_note']}" for c, r in rows if r.get("params_note")]
     if notes:
         lines += [*notes, ""]
+    settings = [f"- {method_label(c)}: {s}" for c, r in rows if (s := cell_settings(r))]
+    if settings:
+        lines += ["Settings beyond the method's defaults, as each cell ran them:", "", *settings, ""]
     if any("/finite/" in s for s in suites):
         name = f"success_violation_{grid.file_name(env_id)}.png"
         written.append(world_figure(env_id, suites, store, fig_dir / name))
@@ -189,6 +192,14 @@ def world_page(env_id: str, rows: Sequence[tuple[Cell, dict[str, Any]]], store: 
         written.append(curves)
         lines += [f"![{env_id}: training curves]({rel}/{name})", ""]
     return lines, written
+
+
+def cell_settings(record: dict[str, Any]) -> str:
+    """The world, method and PPO options a stored cell ran with (`key=value, ...`; '' if none)."""
+    config = record.get("config", {})
+    options = {**config.get("env_options", {}), **config.get("method_options", {}),
+               **config.get("ppo", {})}
+    return ", ".join(f"`{k}={v}`" for k, v in options.items())
 
 
 def grid_table(store: Store) -> list[str]:
