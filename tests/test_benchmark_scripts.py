@@ -44,6 +44,10 @@ SCRIPTS = {
                                    "--horizon", "3"],
     "lab/arm_solve_capacity.py": ["--policy", "random", "--capacities", "1.0", "--episodes", "1",
                                   "--steps", "2"],
+    "lab/curve_agreement.py": [
+        str(ROOT / "benchmarks/results/pointltl0vision64_deepltl_partial_metrics_h200.jsonl"),
+        str(ROOT / "specrl_jax/benchmark/results/PointLTL0Vision-v0__deepltl/metrics.jsonl"),
+        "--window", "50", "--plot", "curves.png"],
     "bench_speed.py": ["--part", "gymnasium", "--seeds", "1", "--episodes", "1",
                        "--num-envs", "4"],
 }

@@ -97,6 +97,8 @@ def test_image_cells_train_and_evaluate_on_the_64_pixel_camera():
     vision = [c for c in grid.GRID if "Vision" in c.env_id]
     assert len(vision) == 15 and all(dict(c.env_options) == {"image_size": 64} for c in vision)
     assert all(not c.env_options for c in grid.GRID if "Vision" not in c.env_id)
+    assert all(c.options()["image_dtype"] == "bfloat16" for c in vision)
+    assert all("image_dtype" not in c.options() for c in grid.GRID if "Vision" not in c.env_id)
     world, _ = specrl_jax.make(vision[0].env_id, **dict(vision[0].env_options))
     assert world.observation_space.spaces["image"].shape == (64, 64, 3)
     assert experiment.family(vision[0].env_id) == experiment.family("PointLTL0-v0")
