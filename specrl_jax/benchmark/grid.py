@@ -231,7 +231,6 @@ TRAIN_RATES: dict[tuple[str, str], tuple[float, str]] = {
     ("PandaLTLReach0Joints-v0", "ltl2action"): (108_990, "H200, 5 x 15M, compile and two resumes included"),
     ("PandaLTLReach0Joints-v0", "rad"): (113_980, "H200, 5 x 15M, compile and a resume included"),
     ("PointLTL0Vision-v0", "genz"): (68_361, "H200, 5 x 15M at 64 x 64, compile and two resumes included"),
-    ("PointLTL0Vision-v0", "rad"): (34_009, "H200, 5 seeds at 64 x 64, the loop's rate after compilation"),
     ("PointLTL0Vision-v0", "deepltl"): (66_080, (
         "H200, 5 x 15M at 64 x 64 learning in turn, convolutions in bfloat16, compile and two "
         "resumes included (70,281 after compilation; float32 55,900)")),
