@@ -218,9 +218,9 @@ def _store_cell(name: str, env_id: str) -> TrainedRun:
                          f"{name!r} is neither a run directory of `specrl-jax train` (no "
                          f"config.json) nor a results-store cell (`specrl-jax reproduce --list`) "
                          f"nor package.module:factory")
-    cell = grid.cell(name)
-    _same_world(cell.env_id, env_id, name)
     store = Store()
+    cell = store.trained_as(grid.cell(name))
+    _same_world(cell.env_id, env_id, name)
     if not cell.trains:  # the coordinator over a single-agent cell's parameters
         if not store.params_path(cell.params_from).exists():
             raise ValueError(f"the results store holds no trained parameters for "

@@ -151,6 +151,8 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     writer = hosts.is_writer()
     figure = bool(trajectories) and records_trajectories(cell)
     record = store.read(cell) or store.new_record(cell)
+    if cell.trains:  # stored parameters are evaluated with the options they were trained with
+        cell = store.trained_as(cell)
     record["config"] = cell.config()
     todo = missing_work(cell, record)
     # the figure's episodes belong to the stored seed-1 parameters: drawn when missing

@@ -17,6 +17,7 @@ directories and is not part of the results.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -133,11 +134,24 @@ class Store:
             return "missing"
         return "done" if not missing_work(cell, record) else "partial"
 
+    def trained_as(self, cell: Cell) -> Cell:
+        """`cell` with the world and method options of its stored training: a cell trained
+        before the grid changed one of them is loaded and evaluated as it was trained (`--rerun`
+        trains it with the grid's). `cell` itself where nothing is trained yet."""
+        record = self.read(cell)
+        if not record or not record.get("training") or "config" not in record:
+            return cell
+        config = record["config"]
+        return dataclasses.replace(
+            cell, method_options=tuple(config.get("method_options", {}).items()),
+            env_options=tuple(config.get("env_options", {}).items()))
+
     def load_params(self, cell: Cell | str) -> Any:
-        """Seed 1's parameters with a leading seed axis of 1 (`experiment.load_params`)."""
+        """Seed 1's parameters with a leading seed axis of 1 (`experiment.load_params`), for the
+        options the cell was trained with (`trained_as`)."""
         from specrl_jax.benchmark import experiment
 
-        c = grid.cell(cell) if isinstance(cell, str) else cell
+        c = self.trained_as(grid.cell(cell) if isinstance(cell, str) else cell)
         return experiment.load_params(c.method, c.env_id, self.params_path(c), 1,
                                       env_options=dict(c.env_options) or None,
                                       method_options=c.options() or None)

@@ -157,6 +157,27 @@ def test_an_interrupted_evaluation_resumes_at_the_missing_suites(tmp_path):
     assert third.trained == 0 and third.evaluated == ["letter/infinite/rsp", "letter/infinite/rec"]
 
 
+def test_a_stored_cell_is_evaluated_with_the_options_it_was_trained_with(tmp_path):
+    """The grid may change a cell's options after it was trained (the image cells' bfloat16
+    convolutions): its stored parameters are re-scored, loaded and evaluated as trained."""
+    store = Store(tmp_path)
+    Fakes().run(store)
+    now = dataclasses.replace(CELL, method_options=(("image_dtype", "bfloat16"),))
+    assert store.trained_as(now) == CELL and store.trained_as(CELL) == CELL
+    assert Store(tmp_path / "empty").trained_as(now) == now  # nothing trained: the grid's
+    record = store.read(CELL)
+    del record["suites"]["letter/infinite/rsp"]  # a suite to score again
+    store.write(CELL, record)
+    seen = []
+    fakes = Fakes()
+    evaluate = fakes.evaluate
+    fakes.evaluate = lambda cell, *rest: seen.append(cell.options()) or evaluate(cell, *rest)
+    reproduce.run_cell(now, store, log=lambda line: None, train=fakes.train,
+                       evaluate=fakes.evaluate, load=fakes.load, trajectories=False)
+    assert fakes.trained == 0 and seen == [{}]
+    assert store.read(CELL)["config"]["method_options"] == {}
+
+
 def test_a_time_limit_stops_training_and_evaluation_and_the_same_call_resumes(tmp_path):
     store = Store(tmp_path)
     other = dataclasses.replace(grid.cell("LetterLTL0-v0/rad"), seeds=2, total_steps=2048,
