@@ -16,6 +16,7 @@ import pathlib
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -106,3 +107,26 @@ def test_script_runs_tiny(script, tmp_path):
 def test_device_prelude_parses():
     """The one shell script (sourced on a lent GPU machine) is at least valid bash."""
     subprocess.run(["bash", "-n", str(BENCHMARKS / "device_prelude.sh")], check=True)
+
+
+def test_curve_agreement_compares_whole_windows_of_matched_updates(tmp_path):
+    import importlib.util
+
+    sys.path.insert(0, str(BENCHMARKS))
+    spec = importlib.util.spec_from_file_location("curve_agreement", BENCHMARKS / "lab/curve_agreement.py")
+    lab = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(lab)
+    rng = np.random.default_rng(0)
+    base = rng.uniform(0.2, 0.4, (25, 5))
+    same = lab.windows(base, base + rng.normal(0, 0.01, base.shape), 10)
+    assert [w["updates"] for w in same] == [[1, 10], [11, 20]]  # the 5-update tail is left out
+    assert all(w["within_two_se"] for w in same)
+    assert not any(w["within_two_se"] for w in lab.windows(base, base + 0.5, 10))
+    with pytest.raises(ValueError, match="choose 1 to 25"):
+        lab.windows(base, base, 0)
+    # rows matched by update: a resumed run's repeated update replaces the earlier row
+    path = tmp_path / "m.jsonl"
+    rows = [(1, [0.0, 1.0]), (2, [0.5, 0.5]), (2, [0.2, 0.2]), (3, [1.0, 1.0])]
+    path.write_text("".join(json.dumps({"update": u, "success_rate_seeds": s}) + "\n" for u, s in rows))
+    a, b = lab.aligned(lab.success_per_seed(str(path)), {1: [0, 0], 2: [0, 0]})
+    assert a.tolist() == [[0.0, 1.0], [0.2, 0.2]] and b.shape == (2, 2)

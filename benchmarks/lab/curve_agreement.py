@@ -1,9 +1,11 @@
 """Do two training runs of the same cell learn alike? Compares their training success per seed
-(`success_rate_seeds` of each update in a run's `metrics.jsonl`) over windows of updates, up to
-the shorter run: for each window, each run's mean over seeds and the spread between its seeds.
-A difference of the means inside the seeds' spread is what a rerun with other seeds gives; one
-outside it is a change in learning. Prints one JSON row (`benchmarks/harness.py`; appended to
-`--out`) and, with `--plot`, draws both runs' curves (mean and every seed).
+(`success_rate_seeds` of each update in a run's `metrics.jsonl`, matched by `update`) over whole
+windows of updates, up to the shorter run: for each window, each run's mean over seeds, its
+seeds' standard deviation, and whether the means differ by at most two standard errors of their
+difference (`2 sqrt(s_a^2 / n_a + s_b^2 / n_b)`, seeds as independent samples: what two runs
+with other seeds give about 95% of the time). Windows share seeds, so they are not independent
+checks. Prints one JSON row (`benchmarks/harness.py`; appended to `--out`) and, with `--plot`,
+draws both runs' curves (mean and every seed).
 
     python benchmarks/lab/curve_agreement.py \\
         benchmarks/results/pointltl0vision64_deepltl_partial_metrics_h200.jsonl \\
@@ -25,28 +27,43 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."
 import harness
 
 
-def success_per_seed(path: str) -> np.ndarray:
-    """[updates, seeds] training success rate of each update of the run at `path`."""
+def success_per_seed(path: str) -> dict[int, list[float]]:
+    """{update: training success rate of each seed} of the run at `path` (a later row of the
+    same update, after a resume, replaces the earlier)."""
     with open(path) as f:
         rows = [json.loads(line) for line in f if line.strip()]
-    if not rows or "success_rate_seeds" not in rows[0]:
-        raise ValueError(f"{path}: no `success_rate_seeds` in its rows; pass a training run's "
-                         "metrics.jsonl")
-    return np.array([r["success_rate_seeds"] for r in rows], dtype=float)
+    if not rows or any("success_rate_seeds" not in r or "update" not in r for r in rows):
+        raise ValueError(f"{path}: rows without `update` and `success_rate_seeds`; pass a "
+                         "training run's metrics.jsonl")
+    return {int(r["update"]): r["success_rate_seeds"] for r in rows}
+
+
+def aligned(a: dict[int, list[float]], b: dict[int, list[float]]) -> tuple[np.ndarray, np.ndarray]:
+    """[updates, seeds] arrays of both runs over the updates 1..N both have."""
+    n = 0
+    while n + 1 in a and n + 1 in b:
+        n += 1
+    if n == 0:
+        raise ValueError("the runs share no updates from update 1")
+    return (np.array([a[u] for u in range(1, n + 1)], dtype=float),
+            np.array([b[u] for u in range(1, n + 1)], dtype=float))
 
 
 def windows(a: np.ndarray, b: np.ndarray, window: int) -> list[dict]:
-    """Per window of `window` updates (up to the shorter run): the means over seeds, the seeds'
-    standard deviation of each run, and whether the means differ by less than the larger one."""
-    updates = min(len(a), len(b))
+    """Per whole window of `window` updates: the means over seeds, the seeds' standard
+    deviations (ddof 1), the difference's standard error and whether the means are within two."""
+    if window < 1 or window > len(a):
+        raise ValueError(f"--window {window}: choose 1 to {len(a)} updates (the shorter run)")
     out = []
-    for lo in range(0, updates, window):
-        hi = min(lo + window, updates)
-        seeds_a, seeds_b = a[lo:hi].mean(0), b[lo:hi].mean(0)
-        spread = max(seeds_a.std(), seeds_b.std())
-        out.append({"updates": [lo + 1, hi], "mean": [round(seeds_a.mean(), 3), round(seeds_b.mean(), 3)],
-                    "seed_std": [round(seeds_a.std(), 3), round(seeds_b.std(), 3)],
-                    "within_spread": bool(abs(seeds_a.mean() - seeds_b.mean()) <= spread)})
+    for lo in range(0, len(a) - window + 1, window):
+        seeds_a, seeds_b = a[lo:lo + window].mean(0), b[lo:lo + window].mean(0)
+        sd_a, sd_b = seeds_a.std(ddof=1), seeds_b.std(ddof=1)
+        se = float(np.sqrt(sd_a**2 / len(seeds_a) + sd_b**2 / len(seeds_b)))
+        gap = abs(seeds_a.mean() - seeds_b.mean())
+        out.append({"updates": [lo + 1, lo + window],
+                    "mean": [round(seeds_a.mean(), 3), round(seeds_b.mean(), 3)],
+                    "seed_std": [round(sd_a, 3), round(sd_b, 3)], "se": round(se, 3),
+                    "within_two_se": bool(gap <= 2 * se)})
     return out
 
 
@@ -77,14 +94,15 @@ def main() -> None:
     parser.add_argument("--plot", default=None, help="write the curves to this PNG")
     parser.add_argument("--out", default=None, help="append the JSON row to this file")
     args = parser.parse_args()
-    a, b = success_per_seed(args.runs[0]), success_per_seed(args.runs[1])
+    a, b = aligned(success_per_seed(args.runs[0]), success_per_seed(args.runs[1]))
     rows = windows(a, b, args.window)
-    agree = sum(r["within_spread"] for r in rows)
-    value = (f"{args.labels[0]} against {args.labels[1]}: the means over seeds differ by "
-             f"{min(abs(r['mean'][0] - r['mean'][1]) for r in rows):.2f}-"
-             f"{max(abs(r['mean'][0] - r['mean'][1]) for r in rows):.2f} per window of "
-             f"{args.window} updates, within the seeds' spread in {agree} of {len(rows)} windows "
-             f"(updates 1-{min(len(a), len(b))})")
+    gaps = [abs(r["mean"][0] - r["mean"][1]) for r in rows]
+    above = sum(r["mean"][1] > r["mean"][0] for r in rows)
+    value = (f"{args.labels[0]} against {args.labels[1]} over updates 1-{rows[-1]['updates'][1]}: "
+             f"the means over seeds {min(gaps):.2f}-{max(gaps):.2f} apart per window of "
+             f"{args.window} updates, within two standard errors in "
+             f"{sum(r['within_two_se'] for r in rows)} of {len(rows)} windows; "
+             f"{args.labels[1]} above in {above}")
     if args.plot:
         plot(a, b, args.labels, args.plot)
     harness.emit(harness.row("Training success of two runs per window of updates", value,

@@ -151,7 +151,10 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     writer = hosts.is_writer()
     figure = bool(trajectories) and records_trajectories(cell)
     record = store.read(cell) or store.new_record(cell)
-    if cell.trains:  # stored parameters are evaluated with the options they were trained with
+    run_dir = store.scratch_dir(cell) / "run"
+    # stored parameters, or a training to resume, keep the options they were trained with; a
+    # training from nothing takes the grid's
+    if cell.trains and (run_dir.exists() or store.params_path(cell).exists()):
         cell = store.trained_as(cell)
     record["config"] = cell.config()
     todo = missing_work(cell, record)
@@ -161,7 +164,6 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     if not todo and not draw:
         log(f"{cell.name}: done, skipped")
         return record
-    run_dir = store.scratch_dir(cell) / "run"
     trained = run_dir / "params.msgpack"
     params = None
     prepared: list[Future | None] = []  # the evaluation of every suite, compiled while training
@@ -210,7 +212,7 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
             raise ValueError(f"{cell.name} runs the seed-1 parameters of {cell.params_from}, "
                              "which the store does not hold "
                              f"({store.params_path(cell.params_from)})")
-        params = load(source, held[0].params_path(source), 1)
+        params = load(held[0].trained_as(source), held[0].params_path(source), 1)
         record["training"] = {"params_from": cell.params_from}
     missing = [s for s in missing_work(cell, record) if s != "train"]
     # one call for every missing suite: one compiled evaluator serves the finite and infinite
@@ -401,7 +403,7 @@ def evaluate_coordinator(cell: Cell, params: Any, suites: Sequence[str], log: Lo
     from specrl_jax.eval.suites import evaluate_suites
     from specrl_jax.tasks.coordinator import SystemWorld, check_spec_agents, make_coordinator
 
-    source = grid.cell(cell.params_from)
+    source = Store().trained_as(grid.cell(cell.params_from))
     if not deterministic and source.method == "gcrl":
         raise ValueError("GCRL-LTL's coordinator agent acts on its primitives' mode actions only")
     env, env_params = make(cell.env_id)

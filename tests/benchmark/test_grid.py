@@ -71,8 +71,13 @@ def test_selection_by_pattern_and_estimates():
     gcrl = grid.cell("PointLTL0Vision-v0/gcrl")
     assert grid.training_rate(gcrl) == pytest.approx(grid.TRAIN_RATES[("PointLTL0Vision-v0", "deepltl")][0])
     assert grid.estimate_seconds(gcrl) > grid.estimate_seconds(grid.cell("PointLTL0Vision-v0/genz"))
-    # a robot's image world adds its physics' time per env step to the Point camera world's
+    # a robot's image world adds its physics' time per env step to the Point camera world's,
+    # and its LiDAR world's evaluation time over Point's
     assert grid.training_rate(grid.cell("AntLTL0Vision-v0/gcrl")) < grid.training_rate(gcrl)
+    car = grid.cell("CarLTL0Vision-v0/gcrl")
+    evaluation = grid.EVAL_S["PointLTL0Vision-v0"] + grid.EVAL_S["CarLTL0-v0"] - grid.EVAL_S["PointLTL0-v0"]
+    assert grid.estimate_seconds(car) == pytest.approx(
+        75e6 / grid.training_rate(car) + grid.SETUP_S + evaluation)
 
 
 def test_paper_numbers_are_data_with_sources():

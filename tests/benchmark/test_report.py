@@ -42,7 +42,7 @@ def _tiny_store(root):
                        evaluate=fakes.evaluate, load=fakes.load)
     # a cell of the real grid with fewer seeds than it asks for: partial
     car = dataclasses.replace(grid.cell("CarLTL0-v0/genz"), seeds=1, episodes=3,
-                              suites=("zone/finite/ind",), method_options=(("stay_steps", 300),))
+                              suites=("zone/finite/ind",), method_options=(("cost_step", -0.5),))
     trajectory = {"formula": "F blue", "episodes": [{
         "xy": [[0.0, 0.0], [0.5, 0.4], [1.0, 1.0]], "outcome": "success", "zone_xy": [[1.0, 1.0]],
         "zone_color": ["blue"], "zone_radius": [0.4]}]}
@@ -80,7 +80,7 @@ def test_report_renders_a_tiny_store_deterministically(tmp_path):
     assert "](../figures/success_violation_LetterLTL0-v0.png)" in world
     car = (tmp_path / "a" / "results" / "CarLTL0-v0.md").read_text()
     assert "GenZ-LTL **(partial: 1/5 seeds)**" in car  # the Car cell: grid asks for 5
-    assert "- GenZ-LTL: `stay_steps=300`" in car  # the options the cell ran with
+    assert "- GenZ-LTL: `cost_step=-0.5`" in car  # the options the cell ran with
     assert "Settings beyond" not in world  # the Letter cell ran with none
     assert "| `LetterLTL0-v0/genz` | 0 | done | 5/5 |" in page
     assert "`PandaLTLReach0Joints-v0` (step 1): genz, deepltl, ltl2action, gcrl, rad" in page

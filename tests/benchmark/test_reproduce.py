@@ -4,6 +4,7 @@ incomplete; the committed store's states; `--list`."""
 
 import dataclasses
 import json
+import shutil
 import time
 from concurrent.futures import Future
 
@@ -176,6 +177,19 @@ def test_a_stored_cell_is_evaluated_with_the_options_it_was_trained_with(tmp_pat
                        evaluate=fakes.evaluate, load=fakes.load, trajectories=False)
     assert fakes.trained == 0 and seen == [{}]
     assert store.read(CELL)["config"]["method_options"] == {}
+    # without its parameters the cell trains again from nothing, with the grid's options
+    reproduce.discard(CELL, store)
+    Fakes().run(store)
+    shutil.rmtree(store.scratch_dir(CELL))
+    store.params_path(CELL).unlink()
+    record = store.read(CELL)
+    del record["suites"]["letter/infinite/rsp"]
+    store.write(CELL, record)
+    seen.clear()
+    reproduce.run_cell(now, store, log=lambda line: None, train=fakes.train,
+                       evaluate=fakes.evaluate, load=fakes.load, trajectories=False)
+    assert fakes.trained == 1 and seen == [{"image_dtype": "bfloat16"}]
+    assert store.read(CELL)["config"]["method_options"] == {"image_dtype": "bfloat16"}
 
 
 def test_a_time_limit_stops_training_and_evaluation_and_the_same_call_resumes(tmp_path):

@@ -29,6 +29,15 @@ def test_committed_parameters_load_and_evaluate(tmp_path):
     assert min(stored) >= 0.95
 
 
+def test_a_committed_cell_runs_with_the_options_it_was_trained_with():
+    """The grid's image cells now run their convolutions in bfloat16; the PointLTL0Vision
+    GenZ-LTL cell was trained in float32 and is loaded so, DeepLTL's as trained."""
+    genz, deepltl = grid.cell("PointLTL0Vision-v0/genz"), grid.cell("PointLTL0Vision-v0/deepltl")
+    assert genz.options()["image_dtype"] == "bfloat16"
+    assert load(genz.name, genz.env_id).method_options == {}
+    assert load(deepltl.name, deepltl.env_id).method_options == {"image_dtype": "bfloat16"}
+
+
 def test_trained_parameters_of_another_world_or_an_unknown_name_are_refused(tmp_path, capsys):
     with pytest.raises(ValueError, match="trained on LetterLTL0-v0, not PointLTL0-v0"):
         load("LetterLTL0-v0/genz", "PointLTL0-v0")
