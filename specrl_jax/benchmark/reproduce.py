@@ -40,7 +40,7 @@ import numpy as np
 
 from specrl_jax import families
 from specrl_jax.baselines import hosts
-from specrl_jax.benchmark import grid
+from specrl_jax.benchmark import estimate, grid
 from specrl_jax.benchmark.grid import Cell
 from specrl_jax.benchmark.store import Store, missing_work, suite_seeds
 
@@ -457,16 +457,16 @@ def format_list(cells: Sequence[Cell], store: Store | None = None) -> str:
     """The grid with each cell's state and estimated GPU time."""
     store = store or Store()
     rows = [f"{'cell':44s} {'step':>4s} {'state':8s} {'seeds':>5s} {'est. GPU':>9s}"]
-    todo = 0.0
+    todo, rates = 0.0, estimate.measured_rates()
     for c in cells:
         state = store.state(c)
         record = store.read(c)
         seeds = suite_seeds(record) if record else 0
-        estimate = grid.estimate_seconds(c)
+        seconds = estimate.seconds(c, rates)
         if state != "done":
-            todo += estimate
+            todo += seconds
         rows.append(f"{c.name:44s} {c.step:4d} {state:8s} {f'{seeds}/{c.seeds}':>5s} "
-                    f"{_duration(estimate):>9s}")
+                    f"{_duration(seconds):>9s}")
     done = sum(store.state(c) == "done" for c in cells)
     rows.append(f"{len(cells)} cells: {done} done, {len(cells) - done} to run, "
                 f"about {_duration(todo)} of GPU time (one GPU)")
@@ -516,7 +516,8 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
     if not todo:
         return {c.name: "done" for c in chosen}
     gpus = gpu_count() if gpus is None else gpus
-    total = sum(grid.estimate_seconds(c) for c in todo)
+    rates = estimate.measured_rates()
+    total = sum(estimate.seconds(c, rates) for c in todo)
     log(f"{len(todo)} cells to run, about {_duration(total)} of GPU time"
         + (f" on {gpus} GPUs side by side" if gpus > 1 else ""))
     if gpus > 1 and len(todo) > 1:
@@ -532,8 +533,8 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
             run_cell(c, store, log=lambda line, c=c: log(f"[{c.name}] {line}"),
                      deadline=deadline, **run_options)
             spent += time.perf_counter() - start
-            estimated += grid.estimate_seconds(c)
-            rest = sum(grid.estimate_seconds(x) for x in todo[i + 1:])
+            estimated += estimate.seconds(c, rates)
+            rest = sum(estimate.seconds(x, rates) for x in todo[i + 1:])
             left = rest * spent / max(estimated, 1e-9)
             log(f"{i + 1}/{len(todo)} cells finished in {_duration(spent)}; ETA {_duration(left)}")
     return {c.name: store.state(c) for c in chosen}
@@ -547,7 +548,8 @@ def _run_side_by_side(cells: Sequence[Cell], store: Store, gpus: int, log: Log,
 
     queue = list(cells)
     running: dict[int, tuple[subprocess.Popen, Cell, float]] = {}
-    estimated = {c.name: grid.estimate_seconds(c) for c in cells}
+    rates = estimate.measured_rates()
+    estimated = {c.name: estimate.seconds(c, rates) for c in cells}
     finished, spent, done_estimate = 0, 0.0, 0.0
     start_all = time.perf_counter()
 

@@ -1,10 +1,11 @@
-"""The experiment grid: every paper suite of every world in a cell, no duplicates, selection,
-estimates; the paper's numbers as data."""
+"""The experiment grid: every paper suite of every world in a cell, no duplicates, selection;
+the estimates of GPU time; the paper's numbers as data."""
 
 import pytest
 
 from specrl_jax import specs
-from specrl_jax.benchmark import grid, paper
+from specrl_jax.benchmark import estimate, grid, paper
+from specrl_jax.benchmark.store import Store
 
 PAPER_PREFIXES = ("letter/", "zone/", "arm_grippers/", "arm_grippers_arm/", "multi_agent_zone/")
 WORLDS = {  # the paper's world -> the env IDs whose cells carry its suites
@@ -55,29 +56,33 @@ def test_selection_by_pattern_and_estimates():
         grid.select("NoSuchWorld/*")
     with pytest.raises(ValueError, match="no cell"):
         grid.cell("LetterLTL0-v0/nope")
-    for c in grid.GRID:
-        assert 0 < grid.estimate_seconds(c) < 3 * 24 * 3600, c.name
-    # a measured cell: 5 x 15M over its measured rate, plus setup and evaluation
-    c = grid.cell("PointLTL0-v0/genz")
-    rate = grid.TRAIN_RATES[("PointLTL0-v0", "genz")][0]
-    assert grid.estimate_seconds(c) == pytest.approx(75e6 / rate + grid.SETUP_S + 42.0)
+
+
+def test_estimates_come_from_the_rates_the_store_measured(tmp_path):
+    rates = {"PointLTL0-v0/genz": 700e3, "PointLTL2-v0/genz": 740e3, "PointLTL2-v0/gcrl": 592e3,
+             "CarLTL0-v0/genz": 190e3, "PointLTL0Vision-v0/deepltl": 66e3}
+    # a measured cell: 5 x 15M over its own rate, plus set-up and evaluation
+    point = grid.cell("PointLTL0-v0/genz")
+    assert estimate.seconds(point, rates) == pytest.approx(
+        75e6 / 700e3 + estimate.SETUP_S + estimate.EVAL_S["PointLTL0-v0"])
     # an unmeasured cell: its world's GenZ-LTL rate times the method's ratio on PointLTL2
-    assert ("CarLTL0-v0", "gcrl") not in grid.TRAIN_RATES
-    ratio = (grid.TRAIN_RATES[("PointLTL2-v0", "gcrl")][0]
-             / grid.TRAIN_RATES[("PointLTL2-v0", "genz")][0])
-    assert grid.training_rate(grid.cell("CarLTL0-v0/gcrl")) == pytest.approx(
-        grid.TRAIN_RATES[("CarLTL0-v0", "genz")][0] * ratio)
-    # an image cell trains at its update's pace: every epoch, as DeepLTL, unless GenZ-LTL's KL stop
+    assert estimate.training_rate(grid.cell("CarLTL0-v0/gcrl"), rates) == pytest.approx(190e3 * 0.8)
+    # a world without a trained cell: the env's rate times the training-to-env ratio
+    assert estimate.training_rate(grid.cell("AntLTL0-v0/gcrl"), rates) == pytest.approx(
+        estimate.ENV_RATES["AntLTL0-v0"] * estimate.TRAIN_PER_ENV_STEP * 0.8)
+    # an image cell trains at DeepLTL's image pace (every epoch); another robot adds its physics'
+    # time per env step and its LiDAR world's evaluation time over Point's
     gcrl = grid.cell("PointLTL0Vision-v0/gcrl")
-    assert grid.training_rate(gcrl) == pytest.approx(grid.TRAIN_RATES[("PointLTL0Vision-v0", "deepltl")][0])
-    assert grid.estimate_seconds(gcrl) > grid.estimate_seconds(grid.cell("PointLTL0Vision-v0/genz"))
-    # a robot's image world adds its physics' time per env step to the Point camera world's,
-    # and its LiDAR world's evaluation time over Point's
-    assert grid.training_rate(grid.cell("AntLTL0Vision-v0/gcrl")) < grid.training_rate(gcrl)
+    assert estimate.training_rate(gcrl, rates) == 66e3
     car = grid.cell("CarLTL0Vision-v0/gcrl")
-    evaluation = grid.EVAL_S["PointLTL0Vision-v0"] + grid.EVAL_S["CarLTL0-v0"] - grid.EVAL_S["PointLTL0-v0"]
-    assert grid.estimate_seconds(car) == pytest.approx(
-        75e6 / grid.training_rate(car) + grid.SETUP_S + evaluation)
+    assert estimate.training_rate(car, rates) < 66e3
+    assert estimate.evaluation_seconds(car) == (estimate.EVAL_S["PointLTL0Vision-v0"]
+                                                + estimate.EVAL_S["CarLTL0-v0"] - estimate.EVAL_S["PointLTL0-v0"])
+    # the package's store: every trained cell's summary rate; every cell's estimate sane
+    measured = estimate.measured_rates()
+    assert measured["PointLTL0-v0/genz"] == Store().read(point)["training"]["env_steps_per_s"]
+    assert all(0 < estimate.seconds(c, measured) < 3 * 24 * 3600 for c in grid.GRID)
+    assert estimate.measured_rates(Store(tmp_path)) == {}
 
 
 def test_paper_numbers_are_data_with_sources():
