@@ -517,11 +517,12 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
         return {c.name: "done" for c in chosen}
     gpus = gpu_count() if gpus is None else gpus
     rates = estimate.measured_rates()
-    total = sum(estimate.seconds(c, rates) for c in todo)
+    estimates = {c.name: estimate.seconds(c, rates) for c in todo}
+    total = sum(estimates.values())
     log(f"{len(todo)} cells to run, about {_duration(total)} of GPU time"
         + (f" on {gpus} GPUs side by side" if gpus > 1 else ""))
     if gpus > 1 and len(todo) > 1:
-        _run_side_by_side(todo, store, gpus, log, worker_args, deadline)
+        _run_side_by_side(todo, estimates, store, gpus, log, worker_args, deadline)
     else:
         spent, estimated = 0.0, 0.0
         for i, c in enumerate(todo):
@@ -533,23 +534,23 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
             run_cell(c, store, log=lambda line, c=c: log(f"[{c.name}] {line}"),
                      deadline=deadline, **run_options)
             spent += time.perf_counter() - start
-            estimated += estimate.seconds(c, rates)
-            rest = sum(estimate.seconds(x, rates) for x in todo[i + 1:])
+            estimated += estimates[c.name]
+            rest = sum(estimates[x.name] for x in todo[i + 1:])
             left = rest * spent / max(estimated, 1e-9)
             log(f"{i + 1}/{len(todo)} cells finished in {_duration(spent)}; ETA {_duration(left)}")
     return {c.name: store.state(c) for c in chosen}
 
 
-def _run_side_by_side(cells: Sequence[Cell], store: Store, gpus: int, log: Log,
-                      worker_args: Sequence[str], deadline: float | None = None) -> None:
+def _run_side_by_side(cells: Sequence[Cell], estimated: dict[str, float], store: Store,
+                      gpus: int, log: Log, worker_args: Sequence[str],
+                      deadline: float | None = None) -> None:
     """One subprocess per cell, at most one per GPU at a time, none started after `deadline`
-    (each is given the minutes left); their output is prefixed with the cell's name."""
+    (each is given the minutes left); their output is prefixed with the cell's name.
+    `estimated`: each cell's estimated seconds, for the ETA."""
     import threading
 
     queue = list(cells)
     running: dict[int, tuple[subprocess.Popen, Cell, float]] = {}
-    rates = estimate.measured_rates()
-    estimated = {c.name: estimate.seconds(c, rates) for c in cells}
     finished, spent, done_estimate = 0, 0.0, 0.0
     start_all = time.perf_counter()
 
