@@ -20,6 +20,7 @@ import argparse
 import ast
 import atexit
 import gc
+import re
 import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future
@@ -39,6 +40,22 @@ def positive_int(text: str) -> int:
 def nonnegative_int(text: str) -> int:
     """argparse type: an integer >= 0."""
     return _int_at_least(text, 0)
+
+
+SEED_RANGE_HELP = ("train and evaluate only these seeds of each cell, e.g. 1-2 now and 3-5 later: "
+                   "a cell too long for one machine's time is completed in parts, each kept "
+                   "beside the seeds the store holds; the seeds get the keys they have in one "
+                   "training of them all")
+
+
+def seed_range(text: str) -> list[int]:
+    """argparse type: FIRST-LAST (or one seed) -> the seed numbers FIRST..LAST, from 1."""
+    match = re.fullmatch(r"(\d+)(?:-(\d+))?", text.strip())
+    seeds = list(range(int(match[1]), int(match[2] or match[1]) + 1)) if match else []
+    if not seeds or seeds[0] < 1:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a seed range: give FIRST-LAST with 1 <= FIRST <= LAST, e.g. 3-5")
+    return seeds
 
 
 def positive_float(text: str) -> float:
@@ -542,9 +559,8 @@ def pretrain_command(args: argparse.Namespace) -> int:
     arg("--gpus", type=positive_int, default=None,
         help="cells run side by side (default: the visible GPUs; 1: one after the other)"),
     arg("--seeds", type=positive_int, default=None,
-        help="seeds per cell (default 5): fewer for smoke runs, or to store a cell that does not "
-             "fit the GPU time as partial (the report says n/5 seeds; a later full run trains "
-             "all five)"),
+        help="seeds per cell (default 5): fewer for smoke runs"),
+    arg("--seed-range", type=seed_range, default=None, metavar="FIRST-LAST", help=SEED_RANGE_HELP),
     arg("--total-steps", type=positive_int, default=None, help="smoke runs: env steps per seed"),
     arg("--episodes", type=positive_int, default=None, help="smoke runs: episodes per spec and seed"),
     arg("--num-envs", type=positive_int, default=None, help="smoke runs: envs per seed"),

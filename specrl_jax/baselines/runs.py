@@ -146,12 +146,22 @@ def seed_batched(trainer: Trainer, num_seeds: int) -> Callable:
     return over_seeds(trainer.updates, num_seeds, in_axes=(0, None, None))
 
 
+def seed_keys(key: jax.Array, num_seeds: int, first_seed: int = 1) -> jax.Array:
+    """The keys of seeds `first_seed` .. `first_seed + num_seeds - 1` of a run from `key`: rows
+    `first_seed - 1` on of `split(key, last)`. `split` gives a longer split the same leading rows,
+    so seeds trained in parts get the keys they have in one run of them all."""
+    if first_seed < 1 or num_seeds < 1:
+        raise ValueError(f"seeds are numbered from 1; got {num_seeds} seeds from {first_seed}")
+    return jax.random.split(key, first_seed - 1 + num_seeds)[first_seed - 1:]
+
+
 def init_seeds(trainer: Trainer, key: jax.Array, num_seeds: int,
-               log: Callable[[str], None] | None = None, program_key: str | None = None
-               ) -> RunnerState:
-    """`num_seeds` initial runner states from `key`, stacked on a leading seed axis;
-    `program_key` names the traced program on disk (`compile_logged`)."""
-    keys = jax.random.split(key, num_seeds)
+               log: Callable[[str], None] | None = None, program_key: str | None = None,
+               first_seed: int = 1) -> RunnerState:
+    """`num_seeds` initial runner states from `key` (seeds `first_seed` on, `seed_keys`),
+    stacked on a leading seed axis; `program_key` names the traced program on disk
+    (`compile_logged`)."""
+    keys = seed_keys(key, num_seeds, first_seed)
     # Seeds are initialised one by one: a vmapped orthogonal init (batched QR) hangs on XLA:CPU.
     init = compile_logged(trainer.init, (keys[0],), "the initial state (env reset, network init)",
                           log, program_key)
@@ -223,6 +233,7 @@ def train_in_run_dir(
     program_key: str | None = None,
     on_compiled: Callable[[], None] | None = None,
     compile_step_early: bool = True,
+    first_seed: int = 1,
 ) -> RunnerState:
     """Train `num_seeds` runs of `trainer` side by side (`vmap`) in chunks of `chunk_updates`,
     resuming from `run_dir` when it holds a checkpoint.
@@ -234,7 +245,8 @@ def train_in_run_dir(
     second identical run does not trace them (`compile_logged`); `on_compiled()` runs once the
     training step has compiled, before it runs (`train_chunks`); `compile_step_early` compiles
     the training step of a fresh run on one device while its initial state compiles and runs
-    (False: one program at a time, for programs whose lowering is not thread-safe). Ctrl-C raises
+    (False: one program at a time, for programs whose lowering is not thread-safe); the seeds
+    are seeds `first_seed` on of a run (`seed_keys`: a part of a run's seeds). Ctrl-C raises
     `TrainingInterrupted` naming the checkpointed update. Rows'
     `wall_s` is training time summed over sessions (a resumed run continues the clock of the
     checkpoint's update), so rates and times to a level stay on one clock. A run directory is
@@ -262,7 +274,7 @@ def train_in_run_dir(
         shapes = runner_shapes(trainer, key, num_seeds)
         compiled = in_background(compile_updates, trainer, shapes, num_seeds, chunk_updates, log,
                                  program_key)
-    runner = init_seeds(trainer, key, num_seeds, log, program_key)
+    runner = init_seeds(trainer, key, num_seeds, log, program_key, first_seed)
     hosts.barrier("run directory ready")
     wall_before = 0.0
     if (run_dir / CHECKPOINT).exists():

@@ -43,9 +43,10 @@ class MethodSpec:
             `deterministic_infinite`); None: `deterministic` holds for every spec.
         prepare_training: `(method, key, config, log, saved) -> method`, a phase before PPO;
             `saved` (a path in the run directory, or None) keeps its result for a resumed run.
-        finish_training: `(method, params, key, config, log, program_key) -> params`, a phase
-            after PPO; `program_key` (or None) names its traced programs on disk
-            (`compile_log.compile_logged`).
+        finish_training: `(method, params, key, config, log, program_key, first_seed) ->
+            params`, a phase after PPO; `program_key` (or None) names its traced programs on
+            disk (`compile_log.compile_logged`); the seeds are seeds `first_seed` on of a run
+            (`runs.seed_keys`).
         param_shapes: `(method, policy_shapes) -> shapes`, where the saved parameters hold more
             than the PPO network's.
         usable_suites: `(suites, log) -> suites`, the suites the method can be evaluated on.

@@ -212,8 +212,11 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
           log: Callable[[str], None] = print, max_wall_s: float | None = None,
           restart: bool = False, devices: Sequence[Any] | None = None,
           env_options: dict[str, Any] | None = None, method_options: dict[str, Any] | None = None,
-          on_compiled: Callable[[], None] | None = None) -> tuple[Any, dict[str, Any]]:
-    """Train `num_seeds` runs; returns `(params with a leading seed axis, training summary)`.
+          on_compiled: Callable[[], None] | None = None, first_seed: int = 1
+          ) -> tuple[Any, dict[str, Any]]:
+    """Train `num_seeds` runs, seeds `first_seed` on (`runs.seed_keys`: trained in parts, a
+    run's seeds are the ones it has trained at once); returns `(params with a leading seed
+    axis, training summary)`.
     `env_options` are `make`'s overrides of the world (e.g. `{"image_size": 64}`),
     `method_options` the method's `make_method` options (e.g. `{"sampler": "curriculum"}`).
     `restart` discards a run directory's earlier run (else it is resumed if its settings match).
@@ -239,6 +242,7 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     extra_config = {"method": method, "env": env_id, "map_bank": map_bank, "seed": seed,
                     **({"env_options": dict(env_options)} if env_options else {}),
                     **({"physics": physics} if physics else {}),
+                    **({"first_seed": first_seed} if first_seed != 1 else {}),
                     **({"method_options": dict(method_options)} if method_options else {})}
     runs.check_run_dir(run_dir, runs.run_config(config, num_seeds, extra_config), restart)
     warn_slow_camera(world, mesh.devices.flat[0].platform)
@@ -265,15 +269,17 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         trainer, key_train, run_dir, chunk_updates, num_seeds, extra_config=extra_config,
         summarise=spec.summarise, log=log, max_wall_s=budget, restart=restart, first_chunk=1,
         program_key=programs, on_compiled=on_compiled,
-        compile_step_early=lowers_in_threads(world),
+        compile_step_early=lowers_in_threads(world), first_seed=first_seed,
     )
     wall = time.perf_counter() - start
     rows = runs.read_metrics(run_dir)
     params, updates = hosts.host_copy((runner.params, runner.update))
     if spec.finish_training is not None:  # a phase on the trained policy (GCRL-LTL's values)
-        params = spec.finish_training(method_obj, params, key_train, config, log, programs)
+        params = spec.finish_training(method_obj, params, key_train, config, log, programs,
+                                      first_seed)
     summary = {
-        "method": method, "env": env_id, "num_seeds": num_seeds, "ppo": dataclasses.asdict(config),
+        "method": method, "env": env_id, "num_seeds": num_seeds,
+        "seeds": list(range(first_seed, first_seed + num_seeds)), "ppo": dataclasses.asdict(config),
         "env_steps_per_seed": rows[-1]["env_steps"] if rows else 0,
         "complete": int(updates[0]) >= config.num_updates,
         "devices": int(mesh.size),  # the env batch was sharded over this many devices

@@ -42,7 +42,14 @@ from specrl_jax import families
 from specrl_jax.baselines import hosts
 from specrl_jax.benchmark import estimate, grid
 from specrl_jax.benchmark.grid import Cell
-from specrl_jax.benchmark.store import Store, missing_work, suite_seeds
+from specrl_jax.benchmark.store import (
+    Store,
+    merge_curves,
+    merge_training,
+    missing_work,
+    suite_seeds,
+    trained_seeds,
+)
 
 Log = Callable[[str], None]
 
@@ -52,10 +59,12 @@ Log = Callable[[str], None]
 
 
 def default_train(cell: Cell, run_dir: Path, log: Log, max_wall_s: float | None = None,
-                  on_compiled: Callable[[], None] | None = None) -> tuple[Any, dict[str, Any]]:
-    """Train `cell`'s seeds side by side with the family's shape on this device
-    (`experiment.default_overrides`, with the method's accelerator settings) and the cell's PPO
-    overrides; the worlds reset from a bank of exactly sampled layouts, of the size
+                  on_compiled: Callable[[], None] | None = None,
+                  seeds: Sequence[int] | None = None) -> tuple[Any, dict[str, Any]]:
+    """Train `cell`'s seeds (or `seeds`, consecutive, of them) side by side with the family's
+    shape on this device (`experiment.default_overrides`, with the method's accelerator
+    settings) and the cell's PPO overrides; the worlds reset from a bank of exactly sampled
+    layouts, of the size
     `WorldFamily.map_bank_size` gives on this device. `max_wall_s` stops training at the first
     checkpoint after that many seconds (resumable); `on_compiled()` runs once the training step
     has compiled (`experiment.train`)."""
@@ -69,10 +78,12 @@ def default_train(cell: Cell, run_dir: Path, log: Log, max_wall_s: float | None 
     overrides = experiment.default_overrides(platform, cell.total_steps, world_family, cell.method, images)
     overrides.update(dict(cell.ppo))
     map_bank = families.get(world_family).map_bank_size(platform)
-    return experiment.train(cell.method, cell.env_id, run_dir, overrides, cell.seeds, log=log,
+    seeds = list(seeds) if seeds is not None else list(range(1, cell.seeds + 1))
+    return experiment.train(cell.method, cell.env_id, run_dir, overrides, len(seeds), log=log,
                             max_wall_s=max_wall_s, map_bank=map_bank,
                             env_options=dict(cell.env_options) or None,
-                            method_options=cell.options() or None, on_compiled=on_compiled)
+                            method_options=cell.options() or None, on_compiled=on_compiled,
+                            first_seed=seeds[0])
 
 
 def default_load(cell: Cell, path: Path, num_seeds: int) -> Any:
@@ -83,15 +94,17 @@ def default_load(cell: Cell, path: Path, num_seeds: int) -> Any:
                                   method_options=cell.options() or None)
 
 
-def default_evaluate(cell: Cell, params: Any, suites: Sequence[str], log: Log) -> list:
-    """`SuiteResult`s of `suites` for seeds 1..cell.seeds (`params` with a seed axis)."""
+def default_evaluate(cell: Cell, params: Any, suites: Sequence[str], log: Log,
+                     seeds: Sequence[int] | None = None) -> list:
+    """`SuiteResult`s of `suites` for seeds 1..cell.seeds, or `seeds` (`params` with a seed
+    axis, one entry per seed)."""
     from specrl_jax.benchmark import experiment
 
     if not cell.trains:
         return evaluate_coordinator(cell, params, suites, log)
     return experiment.evaluate(cell.method, cell.env_id, params, suites, cell.episodes, log=log,
                                env_options=dict(cell.env_options) or None,
-                               method_options=cell.options() or None)
+                               method_options=cell.options() or None, seeds=seeds)
 
 
 def default_prepare(cell: Cell, suites: Sequence[str], log: Log) -> Future | None:
@@ -132,11 +145,16 @@ def _versions() -> tuple[dict[str, str], str]:
 def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
              train: Callable | None = None, evaluate: Callable | None = None,
              load: Callable | None = None, trajectories: Callable | bool = True,
-             deadline: float | None = None, prepare: Callable | None = None) -> dict[str, Any]:
+             deadline: float | None = None, prepare: Callable | None = None,
+             part: Sequence[int] | None = None) -> dict[str, Any]:
     """Complete `cell` in `store`: train if its training is not complete, evaluate the suites
     it lacks, record the trajectory figure's episodes on a Zone LiDAR world; returns its
-    record. `train(cell, run_dir, log, max_wall_s) -> (params, summary)`, `evaluate(cell,
-    params, suites, log) -> [SuiteResult]`, `load(cell, path, num_seeds)` and
+    record. `part` (consecutive seed numbers, e.g. `range(3, 6)`) does that for those seeds
+    only, beside the seeds the store holds (`store.merge_training`, `merge_seeds`,
+    `merge_curves`), so a cell too long for one machine's time is completed in parts; they get
+    the keys they have in one training of every seed (`runs.seed_keys`).
+    `train(cell, run_dir, log, max_wall_s, seeds=) -> (params, summary)`, `evaluate(cell,
+    params, suites, log, seeds=) -> [SuiteResult]`, `load(cell, path, num_seeds)` and
     `trajectories(cell, params) -> dict` replace the defaults (tests; `trajectories=False`: none
     recorded); `prepare(cell, suites, log) -> Future | None` starts compiling the evaluation of
     every suite once the training step has compiled (`train` is then also given
@@ -145,21 +163,32 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     stops at its next checkpoint and the evaluation does not start; the cell stays partial, to
     resume. In a job of several processes every process calls it alike and process 0 writes."""
     store = store or Store()
-    prepare = prepare or (default_prepare if train is None and evaluate is None else None)
+    seeds = list(range(1, cell.seeds + 1))
+    if part is not None:
+        part = list(part)
+        if not cell.trains or not part or part != list(range(part[0], part[-1] + 1)) \
+                or part[0] < 1 or part[-1] > cell.seeds:
+            raise ValueError(f"{cell.name}: seeds {part} are not a part of its training (seeds "
+                             f"1-{cell.seeds}, consecutive, e.g. 3-{cell.seeds})")
+        part = None if part == seeds else part
+    whole = part is None
+    seeds = seeds if whole else part
+    prepare = prepare or (default_prepare if train is None and evaluate is None and whole
+                          else None)
     train, evaluate = train or default_train, evaluate or default_evaluate
     load = load or default_load
     writer = hosts.is_writer()
     figure = bool(trajectories) and records_trajectories(cell)
     record = store.read(cell) or store.new_record(cell)
-    run_dir = store.scratch_dir(cell) / "run"
-    # stored parameters, or a training to resume, keep the options they were trained with; a
-    # training from nothing takes the grid's
-    if cell.trains and (run_dir.exists() or store.params_path(cell).exists()):
+    run_dir = store.scratch_dir(cell) / ("run" if whole else f"run_seeds{seeds[0]}-{seeds[-1]}")
+    # stored parameters, a training to resume, or the other parts of a cell's seeds keep the
+    # options they were trained with; a training from nothing takes the grid's
+    if cell.trains and (run_dir.exists() or store.params_path(cell).exists() or not whole):
         cell = store.trained_as(cell)
     record["config"] = cell.config()
-    todo = missing_work(cell, record)
+    todo = missing_work(cell, record, part)
     # the figure's episodes belong to the stored seed-1 parameters: drawn when missing
-    draw = (figure and not store.trajectories_path(cell).exists()
+    draw = (figure and 1 in seeds and not store.trajectories_path(cell).exists()
             and store.params_path(cell).exists())
     if not todo and not draw:
         log(f"{cell.name}: done, skipped")
@@ -171,7 +200,9 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
         suites_todo = [s for s in todo if s != "train"]
         if "train" in todo or not trained.exists() and suites_todo:
             # (re)train: suites evaluated on other parameters (fewer seeds) are stale
-            log(f"{cell.name}: training {cell.seeds} x {cell.total_steps:,} steps in {run_dir}")
+            which = "" if whole else f" (seeds {seeds[0]}-{seeds[-1]} of {cell.seeds})"
+            log(f"{cell.name}: training {len(seeds)} x {cell.total_steps:,} steps{which} in "
+                f"{run_dir}")
             start = time.perf_counter()
 
             def compile_evaluator() -> None:  # on the host while the device trains
@@ -180,28 +211,38 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
                 except Exception as err:  # noqa: BLE001 (compiled after training instead)
                     log(f"{cell.name}: the evaluator will compile after training "
                         f"({type(err).__name__}: {err})")
-            params, summary = train(cell, run_dir, log, _seconds_left(deadline),
+            params, summary = train(cell, run_dir, log, _seconds_left(deadline), seeds=seeds,
                                     **({"on_compiled": compile_evaluator} if prepare else {}))
-            record["training"] = _plain(summary)
-            record["training"]["complete"] = bool(summary.get("complete", True))
-            record["wall_s"] = {"train": training_wall(summary, time.perf_counter() - start)}
-            record["suites"] = {}
+            summary = {**_plain(summary), "complete": bool(summary.get("complete", True)),
+                       "seeds": seeds}
+            wall = training_wall(summary, time.perf_counter() - start)
+            held = record.get("training", {})
+            if whole:
+                record.update(training=summary, wall_s={"train": wall}, suites={})
+            else:  # the held seeds' training and scores stay; those of these seeds are redone
+                curve_seeds = [s for s in trained_seeds(held) if s not in seeds]
+                record["training"] = merge_training(held, summary, cell.seeds)
+                record["wall_s"] = {"train": sum(
+                    training_wall(p, wall) for p in record["training"]["parts"].values())}
+                record["suites"] = {k: e for k, e in record.get("suites", {}).items()
+                                    if not set(e.get("seeds", [])) & set(seeds)}
             record["versions"], record["device"] = _versions()
             record.pop("source", None)
             record.pop("params_note", None)
-            draw = figure  # new seed-1 parameters: the figure's episodes are drawn again
+            draw = figure and 1 in seeds  # new seed-1 parameters: the figure is drawn again
             if writer:
-                store.trajectories_path(cell).unlink(missing_ok=True)
-                _save_seed1(params, store.params_path(cell))
-                if (run_dir / "metrics.jsonl").exists():
-                    shutil.copyfile(run_dir / "metrics.jsonl", store.curve_path(cell))
+                if 1 in seeds:
+                    store.trajectories_path(cell).unlink(missing_ok=True)
+                    _save_seed1(params, store.params_path(cell))
+                if whole or summary["complete"]:  # a part's curve joins the others once whole
+                    _store_curve(store, cell, run_dir, None if whole else curve_seeds, seeds)
                 store.write(cell, record)
-            if not record["training"]["complete"]:
+            if not summary["complete"]:
                 log(f"{cell.name}: training stopped before its last update; rerun to resume")
                 hosts.barrier(f"{cell.name} written")
                 return record
         elif suites_todo:
-            params = load(cell, trained, cell.seeds)
+            params = load(cell, trained, len(seeds))
         elif draw:
             params = load(cell, store.params_path(cell), 1)
     else:
@@ -214,7 +255,7 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
                              f"({store.params_path(cell.params_from)})")
         params = load(held[0].trained_as(source), held[0].params_path(source), 1)
         record["training"] = {"params_from": cell.params_from}
-    missing = [s for s in missing_work(cell, record) if s != "train"]
+    missing = [s for s in missing_work(cell, record, part) if s != "train"]
     # one call for every missing suite: one compiled evaluator serves the finite and infinite
     # horizons (`eval.suites.evaluate_suites`), compiled once per cell instead of per horizon
     if missing:
@@ -223,7 +264,7 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
                 "to resume")
             hosts.barrier(f"{cell.name} written")
             return record
-        log(f"{cell.name}: evaluating {', '.join(missing)} ({cell.seeds} seeds x "
+        log(f"{cell.name}: evaluating {', '.join(missing)} ({len(seeds)} seeds x "
             f"{cell.episodes} episodes)")
         start = time.perf_counter()
         evaluator = None
@@ -234,7 +275,7 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
                 log(f"{cell.name}: compiling the evaluator beside training failed "
                     f"({type(err).__name__}: {err}); compiling it again")
         results = (evaluator(params) if evaluator is not None
-                   else evaluate(cell, params, missing, log))
+                   else evaluate(cell, params, missing, log, seeds=seeds))
         if writer:
             record["versions"], record["device"] = _versions()
             store.write(cell, record)
@@ -254,6 +295,25 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     result = store.read(cell)
     log(f"{cell.name}: {result['state']}")
     return result
+
+
+def _store_curve(store: Store, cell: Cell, run_dir: Path, held_seeds: list[int] | None,
+                 seeds: list[int]) -> None:
+    """The store's training curve after training `seeds` in `run_dir`: that run's
+    (`held_seeds` None: every seed), or, for a part, merged with the held curve of
+    `held_seeds` (`merge_curves`)."""
+    trained = run_dir / "metrics.jsonl"
+    if not trained.exists():
+        return
+    path = store.curve_path(cell)
+    read = ([json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+            if held_seeds and path.exists() else [])
+    if read and len(read[0].get("success_rate_seeds", held_seeds)) == len(held_seeds):
+        rows = merge_curves([(held_seeds, read), (seeds, [json.loads(line) for line in
+                             trained.read_text().splitlines() if line.strip()])])
+        path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    elif held_seeds is None or 1 in seeds or not path.exists():
+        shutil.copyfile(trained, path)
 
 
 def _seconds_left(deadline: float | None) -> float | None:
@@ -517,7 +577,9 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
         return {c.name: "done" for c in chosen}
     gpus = gpu_count() if gpus is None else gpus
     rates = estimate.measured_rates()
-    estimates = {c.name: estimate.seconds(c, rates) for c in todo}
+    part = run_options.get("part")  # a part's estimate: that many seeds
+    estimates = {c.name: estimate.seconds(dataclasses.replace(c, seeds=len(part)) if part else c,
+                                          rates) for c in todo}
     total = sum(estimates.values())
     log(f"{len(todo)} cells to run, about {_duration(total)} of GPU time"
         + (f" on {gpus} GPUs side by side" if gpus > 1 else ""))
@@ -600,6 +662,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from specrl_jax.cli import SEED_RANGE_HELP, seed_range
+
     parser.add_argument("--cells", default=None,
                         help="fnmatch pattern(s) of cell names, comma-separated (default: all), "
                              "e.g. 'LetterLTL0-v0/genz' or 'Panda*/*'")
@@ -609,9 +673,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gpus", type=int, default=None,
                         help="cells side by side (default: the visible GPUs; 1: in turn)")
     parser.add_argument("--seeds", type=int, default=None,
-                        help="seeds per cell (default 5): fewer for smoke runs, or to store a cell "
-                             "that does not fit the GPU time as partial (the report says n/5 "
-                             "seeds; a later full run trains all five)")
+                        help="seeds per cell (default 5): fewer for smoke runs")
+    parser.add_argument("--seed-range", type=seed_range, default=None, metavar="FIRST-LAST",
+                        help=SEED_RANGE_HELP)
     parser.add_argument("--total-steps", type=int, default=None,
                         help="smoke runs: env steps per seed")
     parser.add_argument("--episodes", type=int, default=None,
@@ -641,8 +705,11 @@ def run_from_args(args: argparse.Namespace) -> int:
                         ("--episodes", args.episodes), ("--num-envs", args.num_envs)):
         if value is not None:
             worker += [flag, str(value)]
+    part = getattr(args, "seed_range", None)
+    if part is not None:
+        worker += ["--seed-range", f"{part[0]}-{part[-1]}"]
     states = reproduce(cells=cells, store=store, gpus=args.gpus, worker_args=worker,
-                       rerun=getattr(args, "rerun", False),
+                       rerun=getattr(args, "rerun", False), part=part,
                        max_minutes=getattr(args, "max_minutes", None),
                        log=lambda line: print(line, flush=True))
     incomplete = [n for n, s in states.items() if s != "done"]

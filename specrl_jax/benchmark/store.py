@@ -174,12 +174,15 @@ class Store:
                 "suites": {}, "training": {}, "wall_s": {}, "versions": {}, "device": None}
 
     def add_suites(self, cell: Cell, results: Iterable[Any], wall_s: float | None = None) -> dict:
-        """Merge evaluated suites (`SuiteResult`s) into the cell's record and write it."""
+        """Merge evaluated suites (`SuiteResult`s) into the cell's record and write it: a suite
+        scored alike on other seeds keeps them beside the new ones (`merge_seeds`)."""
         record = self.read(cell) or self.new_record(cell)
         for result in results:
             entry = suite_entry(result)
             entry["suite_version"] = specs.suite_version(result.suite)
-            record["suites"][result.suite] = entry
+            held = record["suites"].get(result.suite)
+            record["suites"][result.suite] = (entry if held is None
+                                              else merge_seeds(result.suite, held, entry))
         if wall_s is not None:
             record["wall_s"]["eval"] = record["wall_s"].get("eval", 0.0) + float(wall_s)
         self.write(cell, record)
@@ -190,21 +193,117 @@ def _name(cell: Cell | str) -> str:
     return cell.name if isinstance(cell, Cell) else cell
 
 
-def missing_work(cell: Cell, record: dict[str, Any]) -> list[str]:
+def missing_work(cell: Cell, record: dict[str, Any], part: Sequence[int] | None = None
+                 ) -> list[str]:
     """What `record` lacks to complete grid entry `cell`: `train` when its training is not
     complete, and the suites not evaluated on all of its seeds or scored under an older version
-    of the suite (`scored_now`)."""
+    of the suite (`scored_now`). With `part` (seed numbers), what it lacks for those seeds:
+    `train` when one of them is not trained (`trained_seeds`), and the suites not evaluated on
+    every one of them."""
     todo = []
-    if cell.trains and not record.get("training", {}).get("complete", False):
+    training = record.get("training", {})
+    if cell.trains and (not set(part) <= set(trained_seeds(training)) if part is not None
+                        else not training.get("complete", False)):
         todo.append("train")
     seeds = list(range(1, cell.seeds + 1))
     for suite in cell.suites:
         entry = record.get("suites", {}).get(suite)
-        if entry is None or list(entry.get("seeds", [])) != seeds \
+        held = list(entry.get("seeds", [])) if entry is not None else []
+        if entry is None or (not set(part) <= set(held) if part is not None else held != seeds) \
                 or entry.get("episodes_per_seed") != cell.episodes \
                 or not scored_now(suite, entry):
             todo.append(suite)
     return todo
+
+
+def trained_seeds(training: dict[str, Any]) -> list[int]:
+    """The seeds a record's `training` has trained to the end: those of its complete parts
+    (`merge_training`), or 1 .. `num_seeds` of a complete run of them all."""
+    if "parts" in training:
+        return sorted(seed for part in training["parts"].values() if part.get("complete")
+                      for seed in part["seeds"])
+    if training.get("complete"):
+        return list(training.get("seeds", range(1, training.get("num_seeds", 0) + 1)))
+    return []
+
+
+def merge_training(training: dict[str, Any], summary: dict[str, Any], num_seeds: int
+                   ) -> dict[str, Any]:
+    """A record's `training` with a part's summary (`experiment.train` of some seeds, its
+    `seeds`) added: `parts` keeps each part's summary by its seeds (an earlier complete run of
+    seeds 1 .. n becomes the part of those seeds); the summary's other fields are the latest
+    part's, with `num_seeds` the seeds trained so far, `complete` when they are all
+    `num_seeds` of the cell, and `env_steps_per_s` every part's steps over their summed time."""
+    parts = dict(training.get("parts", {}))
+    if not parts and training.get("complete"):
+        earlier = trained_seeds(training)
+        parts[_seed_label(earlier)] = {**training, "seeds": earlier}
+    parts[_seed_label(summary["seeds"])] = dict(summary)
+    merged = {k: v for k, v in summary.items() if k != "seeds"}
+    done = trained_seeds({"parts": parts})
+    steps = [p.get("env_steps_per_seed", 0) * len(p["seeds"]) for p in parts.values()]
+    seconds = [s / p["env_steps_per_s"] for s, p in zip(steps, parts.values())
+               if p.get("env_steps_per_s")]
+    merged.update(parts=parts, num_seeds=len(done),
+                  complete=done == list(range(1, num_seeds + 1)),
+                  env_steps_per_s=sum(steps) / sum(seconds) if seconds else 0.0)
+    return merged
+
+
+def _seed_label(seeds: Sequence[int]) -> str:
+    return f"{min(seeds)}-{max(seeds)}"
+
+
+def merge_seeds(suite: str, held: dict[str, Any], new: dict[str, Any]) -> dict[str, Any]:
+    """One suite entry from `held` and `new` (`suite_entry`s scored alike, on other seeds):
+    per-seed rows in seed order, the summary over them all (`eval.metrics.summarize`). Where
+    they were scored differently (specs, episodes, horizon, suite version, metrics), where
+    `held` is stale or the seeds overlap, `new` replaces `held`."""
+    alike = ("method", "specs", "is_finite", "episodes_per_seed", "horizon", "suite_version")
+    if (any(held.get(k) != new.get(k) for k in alike) or held.get("stale")
+            or set(held["per_seed"]) != set(new["per_seed"])
+            or set(held["seeds"]) & set(new["seeds"])):
+        return new
+    import numpy as np
+
+    from specrl_jax.eval.metrics import summarize
+
+    seeds = list(held["seeds"]) + list(new["seeds"])
+    order = sorted(range(len(seeds)), key=seeds.__getitem__)
+    per_seed = {m: [(held["per_seed"][m] + new["per_seed"][m])[i] for i in order]
+                for m in new["per_seed"]}
+    arrays = {m: np.array([[np.nan if x is None else x for x in row] for row in rows], float)
+              for m, rows in per_seed.items()}
+    summary = summarize(arrays, {suite: list(range(len(new["specs"])))})
+    return _clean({**new, "seeds": sorted(seeds), "per_seed": per_seed, "summary": summary})
+
+
+def merge_curves(parts: Sequence[tuple[Sequence[int], list[dict[str, Any]]]]
+                 ) -> list[dict[str, Any]]:
+    """Training curves of parts of a cell's seeds (`(seeds, rows)`, a row per update of seed
+    means, `metrics.jsonl`) as one over all their seeds: per update (those every part has),
+    scalars averaged with each part's seed count as weight, per-seed lists joined in seed order,
+    `wall_s` summed (the parts trained one after the other)."""
+    parts = sorted(parts, key=lambda p: min(p[0]))
+    weights = [len(seeds) for seeds, _ in parts]
+    by_update = [{row["update"]: row for row in rows} for _, rows in parts]
+    updates = sorted(set.intersection(*(set(u) for u in by_update)))
+    merged = []
+    for update in updates:
+        rows = [u[update] for u in by_update]
+        out = {}
+        for key in rows[0]:
+            values = [r.get(key) for r in rows]
+            if key in ("update", "env_steps"):
+                out[key] = values[0]
+            elif key == "wall_s":
+                out[key] = sum(values)
+            elif all(isinstance(v, list) for v in values):
+                out[key] = [x for v in values for x in v]
+            elif all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values):
+                out[key] = sum(w * v for w, v in zip(weights, values)) / sum(weights)
+        merged.append(out)
+    return merged
 
 
 def suite_seeds(record: dict[str, Any]) -> int:

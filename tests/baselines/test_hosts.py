@@ -72,12 +72,12 @@ runner = train(run_dir)
 env_devices = len(runner.env_state[0].sharding.device_set)
 
 # a results-store cell trained across the processes (evaluation stubbed: no suites)
-def train_cell(cell, cell_run_dir, log, max_wall_s=None):
+def train_cell(cell, cell_run_dir, log, max_wall_s=None, seeds=None):
     cell_runner = train(cell_run_dir)
     return hosts.host_copy(cell_runner.params), {{"complete": True, "env_steps_per_seed": 96}}
 
 states = reproduce.reproduce(cells=[grid.cell("LetterLTL0-v0/genz")], store=Store(store_dir),
-                             train=train_cell, evaluate=lambda *args: [], trajectories=False)
+                             train=train_cell, evaluate=lambda *args, **kw: [], trajectories=False)
 print("RESULT " + json.dumps({{"process": jax.process_index(), "env_devices": env_devices,
                               "states": states, "writes": sorted(set(writes))}}))
 """

@@ -107,6 +107,20 @@ def tiny_run(tmp_path_factory):
     return run_dir, own[0].result.per_seed()
 
 
+@pytest.mark.slow  # a second training step to compile
+def test_a_seed_trained_alone_learns_as_it_does_beside_the_others(tiny_run, tmp_path):
+    run_dir, _ = tiny_run
+    overrides = {"total_timesteps": 1024, "num_envs": 8, "num_steps": 64, "num_minibatches": 2,
+                 "update_epochs": 1}
+    second, summary = experiment.train("genz", "LetterLTL0-v0", tmp_path / "run", overrides,
+                                       num_seeds=1, first_seed=2, map_bank=None,
+                                       log=lambda line: None)
+    assert summary["seeds"] == [2]
+    both = agents.load(str(run_dir), "LetterLTL0-v0")
+    for a, b in zip(jax.tree.leaves(both.params), jax.tree.leaves(second), strict=True):
+        np.testing.assert_allclose(a[1:], b, rtol=1e-4, atol=1e-6)
+
+
 @pytest.mark.slow  # a training step and an evaluator to compile: minutes on a 2-core CPU
 def test_a_run_directory_evaluates_as_its_training_run_did(tiny_run, tmp_path):
     run_dir, own = tiny_run

@@ -120,7 +120,7 @@ def test_the_robot_dynamics_table_compares_point_with_car(tmp_path):
         cell = dataclasses.replace(grid.cell(f"{env_id}/genz"), seeds=4, episodes=20,
                                    suites=("zone/finite/ind",))
         fakes = Fakes()
-        fakes.evaluate = lambda c, params, suites, log, s=success: [
+        fakes.evaluate = lambda c, params, suites, log, s=success, seeds=None: [
             fake_result(c, suite, s) for suite in suites]
         reproduce.run_cell(cell, store, log=lambda line: None, train=fakes.train,
                            evaluate=fakes.evaluate, load=fakes.load, trajectories=False)

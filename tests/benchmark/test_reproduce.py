@@ -21,44 +21,52 @@ from specrl_jax.eval.report import SuiteResult
 CELL = dataclasses.replace(grid.cell("LetterLTL0-v0/genz"), seeds=2, total_steps=2048, episodes=3)
 
 
-def fake_result(cell, suite, success=0.75):
-    seeds, specs, episodes = cell.seeds, 2, cell.episodes
-    rng = np.random.default_rng(len(suite))
-    ok = rng.random((seeds, specs, episodes)) < success
-    table = EpisodeTable(ok, ~ok & (rng.random(ok.shape) < 0.5), np.full(ok.shape, 7),
+def fake_result(cell, suite, success=0.75, seeds=None):
+    seeds = list(seeds or range(1, cell.seeds + 1))
+    specs, episodes = 2, cell.episodes
+    rng = np.random.default_rng(len(suite))  # seed s's episodes whatever the other seeds
+    shape, rows = (max(seeds), specs, episodes), np.array(seeds) - 1
+    ok = (rng.random(shape) < success)[rows]
+    table = EpisodeTable(ok, ~ok & (rng.random(shape) < 0.5)[rows], np.full(ok.shape, 7),
                          ok.astype(int), np.zeros(ok.shape, bool))
     finite = "/finite/" in suite
     result = EvalResult(cell.env_id, ("F a", "F b"), np.array([finite, finite]),
-                        tuple(range(1, seeds + 1)), episodes, 75 if finite else 750, table)
+                        tuple(seeds), episodes, 75 if finite else 750, table)
     return SuiteResult(cell.env_id, suite, "GenZ-LTL", result)
 
 
 class Fakes:
     def __init__(self, fail_on=None, train_s=0.0):
         self.trained, self.evaluated, self.fail_on, self.train_s = 0, [], fail_on, train_s
+        self.seeds = []
         self.limits = []
 
-    def train(self, cell, run_dir, log, max_wall_s=None, on_compiled=None):
+    def train(self, cell, run_dir, log, max_wall_s=None, on_compiled=None, seeds=None):
         """Completes unless given no time (`max_wall_s` 0): then it stops after its first update,
-        as the real training stops at its first checkpoint."""
+        as the real training stops at its first checkpoint. Seed s's curve succeeds at rate
+        s * update / 10."""
+        seeds = list(seeds or range(1, cell.seeds + 1))
         self.trained += 1
+        self.seeds.append(seeds)
         if on_compiled is not None:
             on_compiled()
         self.limits.append(max_wall_s)
         time.sleep(self.train_s)
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "params.msgpack").write_bytes(b"")
-        rows = [{"update": u, "env_steps": 1024 * u, "success_rate": u / 2} for u in (1, 2)]
+        rows = [{"update": u, "env_steps": 1024 * u, "wall_s": float(u),
+                 "success_rate": float(np.mean([s * u / 10 for s in seeds])),
+                 "success_rate_seeds": [s * u / 10 for s in seeds]} for u in (1, 2)]
         (run_dir / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
-        params = {"w": np.zeros((cell.seeds, 3), np.float32)}
+        params = {"w": np.zeros((len(seeds), 3), np.float32)}
         return params, {"complete": max_wall_s != 0.0, "env_steps_per_seed": cell.total_steps,
-                        "num_seeds": cell.seeds, "env_steps_per_s": 1000.0}
+                        "num_seeds": len(seeds), "env_steps_per_s": 1000.0}
 
-    def evaluate(self, cell, params, suites, log):
+    def evaluate(self, cell, params, suites, log, seeds=None):
         if self.fail_on in suites:
             raise RuntimeError("interrupted")
         self.evaluated += suites
-        return [fake_result(cell, suite) for suite in suites]
+        return [fake_result(cell, suite, seeds=seeds) for suite in suites]
 
     def load(self, cell, path, num_seeds):
         return {"w": np.zeros((num_seeds, 3), np.float32)}
@@ -172,7 +180,8 @@ def test_a_stored_cell_is_evaluated_with_the_options_it_was_trained_with(tmp_pat
     seen = []
     fakes = Fakes()
     evaluate = fakes.evaluate
-    fakes.evaluate = lambda cell, *rest: seen.append(cell.options()) or evaluate(cell, *rest)
+    fakes.evaluate = lambda cell, *rest, **kw: (seen.append(cell.options())
+                                                or evaluate(cell, *rest, **kw))
     reproduce.run_cell(now, store, log=lambda line: None, train=fakes.train,
                        evaluate=fakes.evaluate, load=fakes.load, trajectories=False)
     assert fakes.trained == 0 and seen == [{}]
@@ -337,3 +346,92 @@ def test_rerun_discards_a_done_cell_and_runs_it_end_to_end(tmp_path):
                                  load=fakes.load)
     assert states == {CELL.name: "done"}
     assert fakes.trained == 1 and fakes.evaluated == list(CELL.suites)
+
+
+def test_seeds_trained_in_parts_get_the_keys_of_one_training_of_them_all():
+    import jax
+
+    from specrl_jax.baselines.runs import seed_keys
+
+    key = jax.random.key(7)
+    whole = jax.random.key_data(seed_keys(key, 5))
+    np.testing.assert_array_equal(jax.random.key_data(seed_keys(key, 2)), whole[:2])
+    np.testing.assert_array_equal(jax.random.key_data(seed_keys(key, 3, first_seed=3)), whole[2:])
+    with pytest.raises(ValueError, match="numbered from 1"):
+        seed_keys(key, 2, first_seed=0)
+
+
+def test_a_cell_completed_in_parts_equals_its_seeds_side_by_side(tmp_path):
+    three = dataclasses.replace(CELL, seeds=3)
+    store, fakes = Store(tmp_path / "parts"), Fakes()
+
+    def run(store, part=None, fakes=fakes):
+        return reproduce.run_cell(three, store, log=lambda line: None, train=fakes.train,
+                                  evaluate=fakes.evaluate, load=fakes.load, trajectories=False,
+                                  part=part)
+
+    first = run(store, [1])
+    assert first["state"] == "partial" and store.params_path(three).exists()
+    assert missing_work(three, first, [1]) == [] and missing_work(three, first) == [
+        "train", *three.suites]
+    assert first["suites"]["letter/finite/ind"]["seeds"] == [1]
+    done = run(store, range(2, 4))
+    assert done["state"] == "done" and fakes.seeds == [[1], [2, 3]]
+    assert done["training"]["complete"] and sorted(done["training"]["parts"]) == ["1-1", "2-3"]
+    assert done["wall_s"]["train"] == pytest.approx(3 * 2048 / 1000.0)
+    assert run(store, [2, 3])["state"] == "done" and fakes.trained == 2  # nothing left to do
+    # the same cell trained and evaluated side by side gives the same record and curve
+    together = Store(tmp_path / "together")
+    whole = run(together, fakes=Fakes())
+    for suite in three.suites:
+        a, b = done["suites"][suite], whole["suites"][suite]
+        assert a["seeds"] == b["seeds"] == [1, 2, 3]
+        assert a["per_seed"] == b["per_seed"] and a["summary"] == b["summary"]
+    curve = [json.loads(line) for line in store.curve_path(three).read_text().splitlines()]
+    expected = [json.loads(line) for line in together.curve_path(three).read_text().splitlines()]
+    for row, want in zip(curve, expected, strict=True):
+        assert row["success_rate_seeds"] == want["success_rate_seeds"]
+        assert row["success_rate"] == pytest.approx(want["success_rate"])
+        assert row["wall_s"] == 2 * want["wall_s"]  # the parts' training times add up
+    with pytest.raises(ValueError, match="not a part of its training"):
+        run(store, [2, 4])
+
+
+def test_a_part_completes_a_stored_cell_of_fewer_seeds(tmp_path):
+    store = Store(tmp_path)
+    one_seed, three = dataclasses.replace(CELL, seeds=1), dataclasses.replace(CELL, seeds=3)
+    fakes = Fakes()
+    reproduce.run_cell(one_seed, store, log=lambda line: None, train=fakes.train,
+                       evaluate=fakes.evaluate, load=fakes.load, trajectories=False)
+    record = reproduce.run_cell(three, store, log=lambda line: None, train=fakes.train,
+                                evaluate=fakes.evaluate, load=fakes.load, trajectories=False,
+                                part=[2, 3])
+    assert record["state"] == "done" and fakes.seeds == [[1], [2, 3]]
+    assert sorted(record["training"]["parts"]) == ["1-1", "2-3"]
+    assert record["suites"]["letter/finite/ood"]["seeds"] == [1, 2, 3]
+
+
+@pytest.mark.parametrize("text", ["0-2", "3-1", "two", "1-"])
+def test_a_seed_range_that_is_not_one_is_refused(text, capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["reproduce", "--seed-range", text, "--list"])
+    assert "is not a seed range" in capsys.readouterr().err
+
+
+def test_an_interrupted_part_resumes_and_its_curve_joins_once_complete(tmp_path):
+    store, three = Store(tmp_path), dataclasses.replace(CELL, seeds=3)
+    fakes = Fakes()
+
+    def run(part, limit=None):
+        return reproduce.run_cell(three, store, log=lambda line: None, train=fakes.train,
+                                  evaluate=fakes.evaluate, load=fakes.load, trajectories=False,
+                                  part=part, deadline=limit)
+
+    run([1])
+    held = store.curve_path(three).read_text()
+    stopped = run([2, 3], limit=time.monotonic() - 1)  # no time: stops after its first update
+    assert stopped["state"] == "partial" and not stopped["training"]["complete"]
+    assert store.curve_path(three).read_text() == held  # seed 1's curve alone until then
+    assert run([2, 3])["state"] == "done"
+    rows = [json.loads(line) for line in store.curve_path(three).read_text().splitlines()]
+    assert [len(r["success_rate_seeds"]) for r in rows] == [3, 3]

@@ -45,6 +45,7 @@ from specrl_jax.baselines.ppo.networks import (
 )
 from specrl_jax.baselines.ppo.rollout import reset_batch
 from specrl_jax.baselines.ppo.train import Method, PPOConfig, world_config
+from specrl_jax.baselines.runs import seed_keys
 from specrl_jax.baselines.spec import MethodSpec
 from specrl_jax.baselines.train_env import TaskTrainEnv
 from specrl_jax.specs import CurriculumSampler
@@ -365,14 +366,14 @@ def prepare_training(method: GCRL, key: jax.Array, config: PPOConfig,
 
 
 def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig,
-                    log: Callable[[str], None] = print, program_key: str | None = None
-                    ) -> dict[str, Any]:
-    """After PPO: train each seed's GCVF (leading seed axis on `params`); returns
-    `{"policy": params, "gcvf": gcvf params}`, what `make_policy` reads. `program_key` names
-    the traced program on disk (`compile_logged`)."""
+                    log: Callable[[str], None] = print, program_key: str | None = None,
+                    first_seed: int = 1) -> dict[str, Any]:
+    """After PPO: train each seed's GCVF (leading seed axis on `params`, seeds `first_seed` on);
+    returns `{"policy": params, "gcvf": gcvf params}`, what `make_policy` reads. `program_key`
+    names the traced program on disk (`compile_logged`)."""
     cfg = value_config(method, config.total_timesteps)
     num_seeds = jax.tree.leaves(params)[0].shape[0]
-    keys = jax.random.split(jax.random.fold_in(key, 15), num_seeds)
+    keys = seed_keys(jax.random.fold_in(key, 15), num_seeds, first_seed)
     train = compile_logged(jax.vmap(lambda p, k: train_value_function(method, p, k, cfg)),
                            (params, keys), "the GCVF's data collection and fit", log,
                            program_key)
