@@ -152,6 +152,10 @@ def seed_keys(key: jax.Array, num_seeds: int, first_seed: int = 1) -> jax.Array:
     so seeds trained in parts get the keys they have in one run of them all."""
     if first_seed < 1 or num_seeds < 1:
         raise ValueError(f"seeds are numbered from 1; got {num_seeds} seeds from {first_seed}")
+    if first_seed > 1 and not jax.config.jax_threefry_partitionable:
+        raise ValueError("seeds from a first seed above 1 need jax_threefry_partitionable=True "
+                         "(JAX's default), under which a split's leading rows do not depend on "
+                         "its length")
     return jax.random.split(key, first_seed - 1 + num_seeds)[first_seed - 1:]
 
 

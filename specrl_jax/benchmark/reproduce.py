@@ -47,6 +47,7 @@ from specrl_jax.benchmark.store import (
     merge_curves,
     merge_training,
     missing_work,
+    part_conflict,
     suite_seeds,
     trained_seeds,
 )
@@ -163,16 +164,12 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     stops at its next checkpoint and the evaluation does not start; the cell stays partial, to
     resume. In a job of several processes every process calls it alike and process 0 writes."""
     store = store or Store()
-    seeds = list(range(1, cell.seeds + 1))
-    if part is not None:
-        part = list(part)
-        if not cell.trains or not part or part != list(range(part[0], part[-1] + 1)) \
-                or part[0] < 1 or part[-1] > cell.seeds:
-            raise ValueError(f"{cell.name}: seeds {part} are not a part of its training (seeds "
-                             f"1-{cell.seeds}, consecutive, e.g. 3-{cell.seeds})")
-        part = None if part == seeds else part
+    problem = part_problem(cell, store, part)
+    if problem:
+        raise ValueError(problem)
+    part = None if part is None or list(part) == list(range(1, cell.seeds + 1)) else list(part)
     whole = part is None
-    seeds = seeds if whole else part
+    seeds = list(range(1, cell.seeds + 1)) if whole else part
     prepare = prepare or (default_prepare if train is None and evaluate is None and whole
                           else None)
     train, evaluate = train or default_train, evaluate or default_evaluate
@@ -222,7 +219,7 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
             else:  # the held seeds' training and scores stay; those of these seeds are redone
                 curve_seeds = [s for s in trained_seeds(held) if s not in seeds]
                 record["training"] = merge_training(held, summary, cell.seeds)
-                record["wall_s"] = {"train": sum(
+                record["wall_s"] = {**record.get("wall_s", {}), "train": sum(
                     training_wall(p, wall) for p in record["training"]["parts"].values())}
                 record["suites"] = {k: e for k, e in record.get("suites", {}).items()
                                     if not set(e.get("seeds", [])) & set(seeds)}
@@ -297,23 +294,38 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     return result
 
 
+def part_problem(cell: Cell, store: Store, part: Sequence[int] | None) -> str | None:
+    """Why seeds `part` of `cell` cannot be trained and evaluated beside what `store` holds
+    (None: they can, or `part` is None): a cell that trains nothing, seeds that are not
+    consecutive seeds of the cell, or that share some seeds with a held part
+    (`store.part_conflict`)."""
+    if part is None:
+        return None
+    part = list(part)
+    if not cell.trains or not part or part != list(range(part[0], part[-1] + 1)) \
+            or part[0] < 1 or part[-1] > cell.seeds:
+        return (f"{cell.name}: seeds {part} are not a part of its training (seeds "
+                f"1-{cell.seeds}, consecutive, e.g. 3-{cell.seeds})")
+    conflict = part_conflict((store.read(cell) or {}).get("training", {}), part)
+    return f"{cell.name}: {conflict}" if conflict else None
+
+
 def _store_curve(store: Store, cell: Cell, run_dir: Path, held_seeds: list[int] | None,
                  seeds: list[int]) -> None:
     """The store's training curve after training `seeds` in `run_dir`: that run's
     (`held_seeds` None: every seed), or, for a part, merged with the held curve of
     `held_seeds` (`merge_curves`)."""
-    trained = run_dir / "metrics.jsonl"
-    if not trained.exists():
+    from specrl_jax.baselines.runs import read_metrics
+
+    if not (run_dir / "metrics.jsonl").exists():
         return
     path = store.curve_path(cell)
-    read = ([json.loads(line) for line in path.read_text().splitlines() if line.strip()]
-            if held_seeds and path.exists() else [])
-    if read and len(read[0].get("success_rate_seeds", held_seeds)) == len(held_seeds):
-        rows = merge_curves([(held_seeds, read), (seeds, [json.loads(line) for line in
-                             trained.read_text().splitlines() if line.strip()])])
+    held = read_metrics(path.parent) if held_seeds and path.exists() else []
+    if held and len(held[0].get("success_rate_seeds", held_seeds)) == len(held_seeds):
+        rows = merge_curves([(held_seeds, held), (seeds, read_metrics(run_dir))])
         path.write_text("".join(json.dumps(r) + "\n" for r in rows))
-    elif held_seeds is None or 1 in seeds or not path.exists():
-        shutil.copyfile(trained, path)
+    else:  # the first part, or a held curve of other seeds than the record's: this part's
+        shutil.copyfile(run_dir / "metrics.jsonl", path)
 
 
 def _seconds_left(deadline: float | None) -> float | None:
@@ -553,7 +565,9 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
     `max_minutes` no cell or evaluation starts and training stops at its next checkpoint
     (every 10 updates), so a run fits a time slot and the same command resumes it. In a job of
     several processes (`hosts.join`) the cells run in turn (`gpus` None or 1), each over every
-    process's devices; process 0 writes and logs."""
+    process's devices; process 0 writes and logs. `run_options` go to `run_cell`; with
+    `part` (seed numbers) the states are those of the part's seeds, and a cell whose part cannot
+    be trained (`part_problem`) is skipped."""
     deadline = None if max_minutes is None else time.monotonic() + 60.0 * max_minutes
     store = store or Store()
     chosen = list(cells) if cells is not None else grid.select(patterns)
@@ -569,15 +583,24 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
             if hosts.is_writer():
                 discard(c, store)
     hosts.barrier("store ready")  # every process reads the store as process 0 left it
-    todo = [c for c in chosen if store.state(c) != "done"]
+    part = run_options.get("part")
+    problems = {c.name: part_problem(c, store, part) for c in chosen}
+    for problem in filter(None, problems.values()):
+        log(f"{problem}: skipped")
+
+    def state(c: Cell) -> str:  # of the part's seeds, with a part
+        if part is None or problems[c.name]:
+            return store.state(c)
+        return "done" if not missing_work(c, store.read(c) or {}, part) else "partial"
+
+    todo = [c for c in chosen if state(c) != "done" and not problems[c.name]]
     for c in chosen:
-        if c not in todo:
+        if state(c) == "done":
             log(f"{c.name}: done, skipped")
     if not todo:
-        return {c.name: "done" for c in chosen}
+        return {c.name: state(c) for c in chosen}
     gpus = gpu_count() if gpus is None else gpus
-    rates = estimate.measured_rates()
-    part = run_options.get("part")  # a part's estimate: that many seeds
+    rates = estimate.measured_rates()  # a part's estimate: that many seeds
     estimates = {c.name: estimate.seconds(dataclasses.replace(c, seeds=len(part)) if part else c,
                                           rates) for c in todo}
     total = sum(estimates.values())
@@ -600,7 +623,7 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
             rest = sum(estimates[x.name] for x in todo[i + 1:])
             left = rest * spent / max(estimated, 1e-9)
             log(f"{i + 1}/{len(todo)} cells finished in {_duration(spent)}; ETA {_duration(left)}")
-    return {c.name: store.state(c) for c in chosen}
+    return {c.name: state(c) for c in chosen}
 
 
 def _run_side_by_side(cells: Sequence[Cell], estimated: dict[str, float], store: Store,

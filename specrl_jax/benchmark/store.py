@@ -202,52 +202,97 @@ def missing_work(cell: Cell, record: dict[str, Any], part: Sequence[int] | None 
     every one of them."""
     todo = []
     training = record.get("training", {})
-    if cell.trains and (not set(part) <= set(trained_seeds(training)) if part is not None
-                        else not training.get("complete", False)):
+    if part is None:
+        trained, wanted = training.get("complete", False), list(range(1, cell.seeds + 1))
+    else:
+        wanted = list(part)
+        trained = set(wanted) <= set(trained_seeds(training))
+    if cell.trains and not trained:
         todo.append("train")
-    seeds = list(range(1, cell.seeds + 1))
     for suite in cell.suites:
         entry = record.get("suites", {}).get(suite)
         held = list(entry.get("seeds", [])) if entry is not None else []
-        if entry is None or (not set(part) <= set(held) if part is not None else held != seeds) \
-                or entry.get("episodes_per_seed") != cell.episodes \
+        evaluated = held == wanted if part is None else set(wanted) <= set(held)
+        if not evaluated or entry.get("episodes_per_seed") != cell.episodes \
                 or not scored_now(suite, entry):
             todo.append(suite)
     return todo
 
 
-def trained_seeds(training: dict[str, Any]) -> list[int]:
-    """The seeds a record's `training` has trained to the end: those of its complete parts
-    (`merge_training`), or 1 .. `num_seeds` of a complete run of them all."""
+def training_parts(training: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """A record's `training` by parts of the cell's seeds (`merge_training`): its `parts`, or
+    a run of seeds 1 .. `num_seeds` at once as the one part of those seeds."""
     if "parts" in training:
-        return sorted(seed for part in training["parts"].values() if part.get("complete")
-                      for seed in part["seeds"])
-    if training.get("complete"):
-        return list(training.get("seeds", range(1, training.get("num_seeds", 0) + 1)))
-    return []
+        return dict(training["parts"])
+    if "num_seeds" not in training:
+        return {}
+    seeds = list(training.get("seeds", range(1, training["num_seeds"] + 1)))
+    return {_seed_label(seeds): {**training, "seeds": seeds}}
+
+
+def trained_seeds(training: dict[str, Any]) -> list[int]:
+    """The seeds a record's `training` has trained to the end (its complete parts')."""
+    return sorted({seed for part in training_parts(training).values() if part.get("complete")
+                   for seed in part["seeds"]})
+
+
+def part_conflict(training: dict[str, Any], part: Sequence[int]) -> str | None:
+    """Why seeds `part` cannot be trained beside a record's `training` (None: they can): a
+    held part that shares some of its seeds but not all (`--seed-range` retrains a whole part,
+    or new seeds)."""
+    for label, held in training_parts(training).items():
+        shared = set(held["seeds"]) & set(part)
+        if shared and set(held["seeds"]) != set(part):
+            return (f"seeds {_seed_label(part)} share seeds with the part {label} the store holds; "
+                    f"train {label} again, or seeds outside it")
+    return None
+
+
+#: a part's settings that every part of a cell shares (else its seeds learned another way)
+PART_SETTINGS = ("method", "env", "ppo", "env_steps_per_seed")
 
 
 def merge_training(training: dict[str, Any], summary: dict[str, Any], num_seeds: int
                    ) -> dict[str, Any]:
     """A record's `training` with a part's summary (`experiment.train` of some seeds, its
-    `seeds`) added: `parts` keeps each part's summary by its seeds (an earlier complete run of
-    seeds 1 .. n becomes the part of those seeds); the summary's other fields are the latest
-    part's, with `num_seeds` the seeds trained so far, `complete` when they are all
-    `num_seeds` of the cell, and `env_steps_per_s` every part's steps over their summed time."""
-    parts = dict(training.get("parts", {}))
-    if not parts and training.get("complete"):
-        earlier = trained_seeds(training)
-        parts[_seed_label(earlier)] = {**training, "seeds": earlier}
-    parts[_seed_label(summary["seeds"])] = dict(summary)
-    merged = {k: v for k, v in summary.items() if k != "seeds"}
+    `seeds`) added: `parts` holds each part's summary by its seeds (a held run of seeds 1 .. n
+    becomes the part of those seeds; the part of the same seeds is replaced); beside them
+    `seeds` (those trained to the end), `num_seeds`, `complete` (all `num_seeds` of the cell),
+    `env_steps_per_s` (every part's steps over their summed time) and the settings the parts
+    share (`PART_SETTINGS`, `physics`).
+
+    Raises:
+        ValueError: the part shares some seeds with a held part (`part_conflict`), or was
+            trained with other settings (`PART_SETTINGS`) than the held parts.
+    """
+    problem = part_conflict(training, summary["seeds"])
+    if problem:
+        raise ValueError(problem)
+    parts = training_parts(training)
+    label = _seed_label(summary["seeds"])
+    for held_label, held in parts.items():
+        differ = [k for k in PART_SETTINGS if held_label != label and held.get("complete")
+                  and k in held and k in summary and _differs(held[k], summary[k])]
+        if differ:
+            raise ValueError(f"seeds {label} were trained with other {', '.join(differ)} than "
+                             f"the held seeds {held_label}: train them alike (same device kind)")
+    parts[label] = dict(summary)
     done = trained_seeds({"parts": parts})
-    steps = [p.get("env_steps_per_seed", 0) * len(p["seeds"]) for p in parts.values()]
-    seconds = [s / p["env_steps_per_s"] for s, p in zip(steps, parts.values())
-               if p.get("env_steps_per_s")]
-    merged.update(parts=parts, num_seeds=len(done),
+    timed = [p for p in parts.values() if p.get("env_steps_per_s")]
+    steps = [p.get("env_steps_per_seed", 0) * len(p["seeds"]) for p in timed]
+    merged = {k: summary[k] for k in (*PART_SETTINGS, "physics") if k in summary}
+    merged.update(parts=parts, seeds=done, num_seeds=len(done),
                   complete=done == list(range(1, num_seeds + 1)),
-                  env_steps_per_s=sum(steps) / sum(seconds) if seconds else 0.0)
+                  env_steps_per_s=sum(steps) / sum(
+                      s / p["env_steps_per_s"] for s, p in zip(steps, timed)) if timed else 0.0)
     return merged
+
+
+def _differs(a: Any, b: Any) -> bool:
+    """Settings that differ (dicts: on the keys both have, so fields added since compare)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return any(a[k] != b[k] for k in a.keys() & b.keys())
+    return a != b
 
 
 def _seed_label(seeds: Sequence[int]) -> str:
@@ -257,10 +302,10 @@ def _seed_label(seeds: Sequence[int]) -> str:
 def merge_seeds(suite: str, held: dict[str, Any], new: dict[str, Any]) -> dict[str, Any]:
     """One suite entry from `held` and `new` (`suite_entry`s scored alike, on other seeds):
     per-seed rows in seed order, the summary over them all (`eval.metrics.summarize`). Where
-    they were scored differently (specs, episodes, horizon, suite version, metrics), where
-    `held` is stale or the seeds overlap, `new` replaces `held`."""
-    alike = ("method", "specs", "is_finite", "episodes_per_seed", "horizon", "suite_version")
-    if (any(held.get(k) != new.get(k) for k in alike) or held.get("stale")
+    `held` is not scored as the suite is now (`scored_now`), was scored otherwise (specs,
+    episodes, horizon, metrics) or shares seeds with `new`, `new` replaces it."""
+    alike = ("method", "specs", "is_finite", "episodes_per_seed", "horizon")
+    if (any(held.get(k) != new.get(k) for k in alike) or not scored_now(suite, held)
             or set(held["per_seed"]) != set(new["per_seed"])
             or set(held["seeds"]) & set(new["seeds"])):
         return new

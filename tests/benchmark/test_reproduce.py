@@ -13,6 +13,7 @@ import pytest
 
 from specrl_jax import cli
 from specrl_jax.benchmark import grid, reproduce
+from specrl_jax.benchmark import store as store_lib
 from specrl_jax.benchmark.store import Store, missing_work
 from specrl_jax.eval.evaluate import EvalResult
 from specrl_jax.eval.metrics import EpisodeTable
@@ -395,6 +396,12 @@ def test_a_cell_completed_in_parts_equals_its_seeds_side_by_side(tmp_path):
         assert row["wall_s"] == 2 * want["wall_s"]  # the parts' training times add up
     with pytest.raises(ValueError, match="not a part of its training"):
         run(store, [2, 4])
+    with pytest.raises(ValueError, match="share seeds with the part 1-1"):
+        run(store, [1, 2])
+    states = reproduce.reproduce(cells=[three], store=store, gpus=1, log=lambda line: None,
+                                 part=[1, 2], train=fakes.train, evaluate=fakes.evaluate,
+                                 load=fakes.load, trajectories=False)
+    assert states == {three.name: "done"} and fakes.trained == 2  # skipped, the store unchanged
 
 
 def test_a_part_completes_a_stored_cell_of_fewer_seeds(tmp_path):
@@ -408,7 +415,21 @@ def test_a_part_completes_a_stored_cell_of_fewer_seeds(tmp_path):
                                 part=[2, 3])
     assert record["state"] == "done" and fakes.seeds == [[1], [2, 3]]
     assert sorted(record["training"]["parts"]) == ["1-1", "2-3"]
+    assert record["training"]["seeds"] == [1, 2, 3]
     assert record["suites"]["letter/finite/ood"]["seeds"] == [1, 2, 3]
+    assert "eval" in record["wall_s"]  # the first part's evaluation time is kept
+
+
+def test_parts_trained_with_other_settings_are_not_merged():
+    held = {"num_seeds": 2, "complete": True, "ppo": {"num_envs": 512, "lr": 3e-4},
+            "env_steps_per_seed": 100, "env_steps_per_s": 10.0}
+    part = {"seeds": [3], "complete": True, "ppo": {"num_envs": 16, "lr": 3e-4},
+            "env_steps_per_seed": 100, "env_steps_per_s": 5.0}
+    with pytest.raises(ValueError, match="other ppo than the held seeds 1-2"):
+        store_lib.merge_training(held, part, 3)
+    merged = store_lib.merge_training(held, {**part, "ppo": {"num_envs": 512}}, 3)
+    assert merged["complete"] and merged["seeds"] == [1, 2, 3] and merged["num_seeds"] == 3
+    assert merged["env_steps_per_s"] == pytest.approx(300 / (200 / 10.0 + 100 / 5.0))
 
 
 @pytest.mark.parametrize("text", ["0-2", "3-1", "two", "1-"])
