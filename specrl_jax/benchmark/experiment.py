@@ -385,13 +385,16 @@ def prepare_evaluation_in_background(method: str, env_id: str, num_seeds: int,
                                      suites: Sequence[str], episodes: int,
                                      log: Callable[[str], None] = print,
                                      env_options: dict[str, Any] | None = None,
-                                     method_options: dict[str, Any] | None = None) -> Future:
-    """`prepare_evaluation` for the parameters `num_seeds` seeds of `method` will have, compiling
-    in another thread (e.g. while they train); the future holds `evaluate(params)`."""
-    shapes = param_shapes(method, env_id, num_seeds, env_options, method_options)
+                                     method_options: dict[str, Any] | None = None,
+                                     seeds: Sequence[int] | None = None) -> Future:
+    """`prepare_evaluation` for the parameters `num_seeds` seeds of `method` will have (seeds
+    1 .. num_seeds, or `seeds`), compiling in another thread (e.g. while they train); the
+    future holds `evaluate(params)`."""
+    shapes = param_shapes(method, env_id, len(seeds) if seeds else num_seeds, env_options,
+                          method_options)
     return in_background(functools.partial(
         prepare_evaluation, method, env_id, shapes, suites, episodes, log=log,
-        env_options=env_options, method_options=method_options))
+        env_options=env_options, method_options=method_options, seeds=seeds))
 
 
 def param_shapes(method: str, env_id: str, num_seeds: int | None = None,

@@ -108,10 +108,11 @@ def default_evaluate(cell: Cell, params: Any, suites: Sequence[str], log: Log,
                                method_options=cell.options() or None, seeds=seeds)
 
 
-def default_prepare(cell: Cell, suites: Sequence[str], log: Log) -> Future | None:
-    """`default_evaluate`'s program for `cell`'s trained parameters, compiling in a background
-    thread (before they exist, beside training) where that is safe: a trained cell on an
-    accelerator, a job of one process, a world lowered without MuJoCo Warp
+def default_prepare(cell: Cell, suites: Sequence[str], log: Log,
+                    seeds: Sequence[int] | None = None) -> Future | None:
+    """`default_evaluate`'s program for `cell`'s trained parameters (of `seeds`, default all),
+    compiling in a background thread (before they exist, beside training) where that is safe:
+    a trained cell on an accelerator, a job of one process, a world lowered without MuJoCo Warp
     (`experiment.lowers_in_threads`); else None. The future holds `evaluate(params)`."""
     import jax
 
@@ -124,7 +125,7 @@ def default_prepare(cell: Cell, suites: Sequence[str], log: Log) -> Future | Non
         return None
     return experiment.prepare_evaluation_in_background(
         cell.method, cell.env_id, cell.seeds, suites, cell.episodes, log, env_options,
-        method_options)
+        method_options, seeds)
 
 
 def _save_seed1(params: Any, path: Path) -> None:
@@ -157,8 +158,8 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     `train(cell, run_dir, log, max_wall_s, seeds=) -> (params, summary)`, `evaluate(cell,
     params, suites, log, seeds=) -> [SuiteResult]`, `load(cell, path, num_seeds)` and
     `trajectories(cell, params) -> dict` replace the defaults (tests; `trajectories=False`: none
-    recorded); `prepare(cell, suites, log) -> Future | None` starts compiling the evaluation of
-    every suite once the training step has compiled (`train` is then also given
+    recorded); `prepare(cell, suites, log, seeds) -> Future | None` starts compiling the
+    evaluation of every suite once the training step has compiled (`train` is then also given
     `on_compiled=`), its future holding `evaluate(params)` (default with the default training
     and evaluation: `default_prepare`). Past `deadline` (a `time.monotonic()` value) training
     stops at its next checkpoint and the evaluation does not start; the cell stays partial, to
@@ -170,8 +171,7 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     part = None if part is None or list(part) == list(range(1, cell.seeds + 1)) else list(part)
     whole = part is None
     seeds = list(range(1, cell.seeds + 1)) if whole else part
-    prepare = prepare or (default_prepare if train is None and evaluate is None and whole
-                          else None)
+    prepare = prepare or (default_prepare if train is None and evaluate is None else None)
     train, evaluate = train or default_train, evaluate or default_evaluate
     load = load or default_load
     writer = hosts.is_writer()
@@ -204,7 +204,7 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
 
             def compile_evaluator() -> None:  # on the host while the device trains
                 try:
-                    prepared.append(prepare(cell, list(cell.suites), log))
+                    prepared.append(prepare(cell, list(cell.suites), log, seeds))
                 except Exception as err:  # noqa: BLE001 (compiled after training instead)
                     log(f"{cell.name}: the evaluator will compile after training "
                         f"({type(err).__name__}: {err})")

@@ -101,12 +101,12 @@ def test_a_cell_is_trained_evaluated_then_skipped(tmp_path):
 def test_the_evaluator_compiled_beside_training_scores_the_trained_cell(tmp_path):
     fakes, asked = Fakes(), []
 
-    def prepare(cell, suites, log):  # its future holds the evaluation of every suite
+    def prepare(cell, suites, log, seeds):  # its future holds the evaluation of every suite
         asked.append(list(suites))
 
         def evaluator(params):
             asked.append("used")
-            return fakes.evaluate(cell, params, suites, log)
+            return fakes.evaluate(cell, params, suites, log, seeds=seeds)
 
         future = Future()
         future.set_result(evaluator)
@@ -118,9 +118,15 @@ def test_the_evaluator_compiled_beside_training_scores_the_trained_cell(tmp_path
                                 prepare=prepare)
     assert record["state"] == "done" and asked == [list(CELL.suites), "used"]
     assert fakes.evaluated == list(CELL.suites)  # once, through the prepared evaluator
+    three, asked[:] = dataclasses.replace(CELL, seeds=3), []  # a part's evaluator: its seeds
+    record = reproduce.run_cell(three, store, log=lambda line: None, train=fakes.train,
+                                evaluate=fakes.evaluate, load=fakes.load, trajectories=False,
+                                prepare=prepare, part=[3])
+    assert asked == [list(CELL.suites), "used"]
+    assert record["suites"]["letter/finite/ind"]["seeds"] == [1, 2, 3]
     failing = Fakes()  # a failed background compilation: evaluated the usual way
 
-    def broken(cell, suites, log):
+    def broken(cell, suites, log, seeds):
         future = Future()
         future.set_exception(RuntimeError("out of memory"))
         return future
@@ -134,7 +140,7 @@ def test_the_evaluator_compiled_beside_training_scores_the_trained_cell(tmp_path
                in line for line in lines)
     raising = Fakes()  # failing before its thread starts: the training goes on
 
-    def unbuildable(cell, suites, log):
+    def unbuildable(cell, suites, log, seeds):
         raise ValueError("no such world")
 
     lines.clear()
