@@ -170,3 +170,22 @@ def test_the_set_up_before_training_counts_in_the_wall_clock_budget_and_is_kept(
                      log=lambda _: None, max_wall_s=100.0)
     assert len(given) == 1 and given[0] <= 99.5
     assert kept == [tmp_path / "run" / experiment.PREPARED]  # the phase's result, for a resume
+
+
+def test_the_phase_after_training_waits_for_the_last_update(dot_and_reach, tmp_path):
+    finished = []
+
+    def finish(method, params, key, config, log, program_key, first_seed):
+        finished.append(config.num_updates)  # e.g. GCRL-LTL's value functions
+        return {"policy": params, "extra": np.zeros(1)}
+
+    unregister_method("reach")
+    register_method(dataclasses.replace(REACH, finish_training=finish))
+    overrides = {**experiment.default_overrides("cpu", 4 * 16 * 3, "dot")}
+    run = tmp_path / "run"
+    params, summary = experiment.train("reach", "DotLTL-v0", run, overrides, map_bank=None,
+                                       log=lambda _: None, max_wall_s=0.0)
+    assert not summary["complete"] and finished == [] and "extra" not in params
+    params, summary = experiment.train("reach", "DotLTL-v0", run, overrides, map_bank=None,
+                                       log=lambda _: None)
+    assert summary["complete"] and len(finished) == 1 and "extra" in params

@@ -221,7 +221,8 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     `method_options` the method's `make_method` options (e.g. `{"sampler": "curriculum"}`).
     `restart` discards a run directory's earlier run (else it is resumed if its settings match).
     `max_wall_s` stops training at the first checkpoint after that many seconds of this call,
-    set-up included (resumable). `on_compiled()` runs once the training step has compiled,
+    set-up included (resumable; a phase after training, `MethodSpec.finish_training`, waits for
+    the run's last update). `on_compiled()` runs once the training step has compiled,
     before it runs: host work that would slow the compilation down (another compilation).
     The env batch is sharded over `devices` (default: every device, of every process in a job
     of several; `num_envs` must divide by their count), parameters replicated; the result does
@@ -274,14 +275,18 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     wall = time.perf_counter() - start
     rows = runs.read_metrics(run_dir)
     params, updates = hosts.host_copy((runner.params, runner.update))
-    if spec.finish_training is not None:  # a phase on the trained policy (GCRL-LTL's values)
+    complete = int(updates[0]) >= config.num_updates
+    if spec.finish_training is not None and complete:  # GCRL-LTL's values, on the whole policy
         params = spec.finish_training(method_obj, params, key_train, config, log, programs,
                                       first_seed)
+    elif spec.finish_training is not None:
+        log("training stopped early: the phase after training runs once the run resumes to its "
+            "last update")
     summary = {
         "method": method, "env": env_id, "num_seeds": num_seeds,
         "seeds": list(range(first_seed, first_seed + num_seeds)), "ppo": dataclasses.asdict(config),
         "env_steps_per_seed": rows[-1]["env_steps"] if rows else 0,
-        "complete": int(updates[0]) >= config.num_updates,
+        "complete": complete,
         "devices": int(mesh.size),  # the env batch was sharded over this many devices
         "processes": jax.process_count(),  # ... of this many processes
         "physics": physics,  # Zone worlds
