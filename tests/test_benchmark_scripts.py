@@ -105,8 +105,32 @@ def test_script_runs_tiny(script, tmp_path):
 
 
 def test_device_prelude_parses():
-    """The one shell script (sourced on a lent GPU machine) is at least valid bash."""
+    """The shell script sourced on a lent GPU machine is at least valid bash."""
     subprocess.run(["bash", "-n", str(BENCHMARKS / "device_prelude.sh")], check=True)
+
+
+def test_device_reproduce_passes_its_arguments_and_brings_back_cells_without_scratch(tmp_path):
+    """`device_reproduce.sh` runs `reproduce` on its store with the arguments given and packs the
+    store's cells for $OUT, leaving out scratch/ and files over KEEP_MB."""
+    import tarfile
+
+    site, store, out = tmp_path / "site", tmp_path / "store", tmp_path / "out"
+    for folder in (site, store / "Demo__x", store / "scratch" / "Demo__x", out):
+        folder.mkdir(parents=True)
+    (site / ".installed").touch()  # the packages are there: the prelude installs nothing
+    (store / "Demo__x" / "cell.json").write_text("{}")
+    (store / "Demo__x" / "params_seed1.msgpack").write_bytes(b"\0" * (2 << 20))
+    (store / "scratch" / "Demo__x" / "checkpoint.msgpack").write_bytes(b"\0")
+    env = {**os.environ, "SPECRL_SITE": str(site), "STORE": str(store), "OUT": str(out),
+           "KEEP_MB": "1", "PATH": f"{pathlib.Path(sys.executable).parent}:{os.environ['PATH']}"}
+    done = subprocess.run(["bash", str(BENCHMARKS / "device_reproduce.sh"), "--list",
+                           "--cells", "LetterLTL0-v0/genz"], env=env, cwd=tmp_path,
+                          capture_output=True, text=True, check=False)
+    assert done.returncode == 0, done.stderr + done.stdout
+    (log,) = out.glob("reproduce_*.log")
+    assert "LetterLTL0-v0/genz" in log.read_text() and "PointLTL0-v0" not in log.read_text()
+    with tarfile.open(out / "cells.tar.gz") as tar:
+        assert [n for n in tar.getnames() if tar.getmember(n).isfile()] == ["./Demo__x/cell.json"]
 
 
 def test_curve_agreement_compares_whole_windows_of_matched_updates(tmp_path):
