@@ -109,28 +109,39 @@ def test_device_prelude_parses():
     subprocess.run(["bash", "-n", str(BENCHMARKS / "device_prelude.sh")], check=True)
 
 
-def test_device_reproduce_passes_its_arguments_and_brings_back_cells_without_scratch(tmp_path):
-    """`device_reproduce.sh` runs `reproduce` on its store with the arguments given and packs the
-    store's cells for $OUT, leaving out scratch/ and files over KEEP_MB."""
+def test_device_reproduce_starts_from_the_package_store_and_brings_back_what_it_wrote(tmp_path):
+    """`device_reproduce.sh` runs `reproduce` with its arguments on a store copied from the
+    package's, and packs for $OUT the files written since, without scratch/ or files over
+    KEEP_MB."""
     import tarfile
 
     site, store, out = tmp_path / "site", tmp_path / "store", tmp_path / "out"
-    for folder in (site, store / "Demo__x", store / "scratch" / "Demo__x", out):
-        folder.mkdir(parents=True)
+    site.mkdir()
     (site / ".installed").touch()  # the packages are there: the prelude installs nothing
-    (store / "Demo__x" / "cell.json").write_text("{}")
-    (store / "Demo__x" / "params_seed1.msgpack").write_bytes(b"\0" * (2 << 20))
-    (store / "scratch" / "Demo__x" / "checkpoint.msgpack").write_bytes(b"\0")
     env = {**os.environ, "SPECRL_SITE": str(site), "STORE": str(store), "OUT": str(out),
            "KEEP_MB": "1", "PATH": f"{pathlib.Path(sys.executable).parent}:{os.environ['PATH']}"}
-    done = subprocess.run(["bash", str(BENCHMARKS / "device_reproduce.sh"), "--list",
-                           "--cells", "LetterLTL0-v0/genz"], env=env, cwd=tmp_path,
-                          capture_output=True, text=True, check=False)
-    assert done.returncode == 0, done.stderr + done.stdout
-    (log,) = out.glob("reproduce_*.log")
-    assert "LetterLTL0-v0/genz" in log.read_text() and "PointLTL0-v0" not in log.read_text()
-    with tarfile.open(out / "cells.tar.gz") as tar:
-        assert [n for n in tar.getnames() if tar.getmember(n).isfile()] == ["./Demo__x/cell.json"]
+
+    def call() -> list[str]:
+        if out.exists():
+            for old in out.iterdir():
+                old.unlink()
+        out.mkdir(exist_ok=True)
+        done = subprocess.run(["bash", str(BENCHMARKS / "device_reproduce.sh"), "--list",
+                               "--cells", "LetterLTL0-v0/genz"], env=env, cwd=tmp_path,
+                              capture_output=True, text=True, check=False)
+        assert done.returncode == 0, done.stderr + done.stdout
+        (log,) = out.glob("reproduce_*.log")
+        assert "LetterLTL0-v0/genz" in log.read_text() and "PointLTL0-v0" not in log.read_text()
+        with tarfile.open(out / "cells.tar.gz") as tar:
+            return [n for n in tar.getnames() if tar.getmember(n).isfile()]
+
+    assert call() == []  # the package's store, copied: nothing written yet
+    assert (store / "LetterLTL0-v0__genz" / "cell.json").exists()
+    (store / "scratch" / "Demo__x").mkdir(parents=True)
+    (store / "scratch" / "Demo__x" / "checkpoint.msgpack").write_bytes(b"\0")
+    (store / "LetterLTL0-v0__genz" / "params_seed1.msgpack").write_bytes(b"\0" * (2 << 20))
+    (store / "LetterLTL0-v0__genz" / "cell.json").write_text("{}")
+    assert call() == ["./LetterLTL0-v0__genz/cell.json"]
 
 
 def test_curve_agreement_compares_whole_windows_of_matched_updates(tmp_path):
