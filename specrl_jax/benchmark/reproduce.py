@@ -526,7 +526,8 @@ def shrink(cells: Sequence[Cell], **changes: Any) -> list[Cell]:
 
 
 def format_list(cells: Sequence[Cell], store: Store | None = None) -> str:
-    """The grid with each cell's state and estimated GPU time."""
+    """The grid with each cell's state and estimated GPU time (a partial cell's: that of the
+    seeds it lacks, trained as one part)."""
     store = store or Store()
     rows = [f"{'cell':44s} {'step':>4s} {'state':8s} {'seeds':>5s} {'est. GPU':>9s}"]
     todo, rates = 0.0, estimate.measured_rates()
@@ -534,7 +535,8 @@ def format_list(cells: Sequence[Cell], store: Store | None = None) -> str:
         state = store.state(c)
         record = store.read(c)
         seeds = suite_seeds(record) if record else 0
-        seconds = estimate.seconds(c, rates)
+        left = c.seeds - seeds if state == "partial" and 0 < seeds < c.seeds else c.seeds
+        seconds = estimate.seconds(dataclasses.replace(c, seeds=left), rates)
         if state != "done":
             todo += seconds
         rows.append(f"{c.name:44s} {c.step:4d} {state:8s} {f'{seeds}/{c.seeds}':>5s} "

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from specrl_jax import cli
-from specrl_jax.benchmark import grid, reproduce
+from specrl_jax.benchmark import estimate, grid, reproduce
 from specrl_jax.benchmark import store as store_lib
 from specrl_jax.benchmark.store import Store, missing_work
 from specrl_jax.eval.evaluate import EvalResult
@@ -424,6 +424,18 @@ def test_a_part_completes_a_stored_cell_of_fewer_seeds(tmp_path):
     assert record["training"]["seeds"] == [1, 2, 3]
     assert record["suites"]["letter/finite/ood"]["seeds"] == [1, 2, 3]
     assert "eval" in record["wall_s"]  # the first part's evaluation time is kept
+
+
+def test_the_list_estimates_a_partial_cell_by_the_seeds_it_lacks(tmp_path):
+    long = dataclasses.replace(CELL, seeds=3, total_steps=10**9)  # training dominates
+    store, fakes = Store(tmp_path), Fakes()
+    reproduce.run_cell(long, store, log=lambda line: None, train=fakes.train,
+                       evaluate=fakes.evaluate, load=fakes.load, trajectories=False, part=[1])
+    (row, total) = reproduce.format_list([long], store).splitlines()[1:]
+    rates = estimate.measured_rates()
+    left = reproduce._duration(estimate.seconds(dataclasses.replace(long, seeds=2), rates))
+    assert row.split()[2:] == ["partial", "1/3", *left.split()]
+    assert left != reproduce._duration(estimate.seconds(long, rates)) and left in total
 
 
 def test_parts_trained_with_other_settings_are_not_merged():
