@@ -111,8 +111,8 @@ def test_device_prelude_parses():
 
 def test_device_reproduce_starts_from_the_package_store_and_brings_back_what_it_wrote(tmp_path):
     """`device_reproduce.sh` runs `reproduce` with its arguments on a store copied from the
-    package's, and packs for $OUT the files written since, without scratch/ or files over
-    KEEP_MB."""
+    package's, packs for $OUT the files written since, without scratch/ or files over KEEP_MB
+    (listed in the log, as are files the run deleted), and exits with reproduce's status."""
     import tarfile
 
     site, store, out = tmp_path / "site", tmp_path / "store", tmp_path / "out"
@@ -121,27 +121,35 @@ def test_device_reproduce_starts_from_the_package_store_and_brings_back_what_it_
     env = {**os.environ, "SPECRL_SITE": str(site), "STORE": str(store), "OUT": str(out),
            "KEEP_MB": "1", "PATH": f"{pathlib.Path(sys.executable).parent}:{os.environ['PATH']}"}
 
-    def call() -> list[str]:
+    def call(*args: str) -> tuple[int, str, list[str]]:
         if out.exists():
             for old in out.iterdir():
                 old.unlink()
         out.mkdir(exist_ok=True)
-        done = subprocess.run(["bash", str(BENCHMARKS / "device_reproduce.sh"), "--list",
-                               "--cells", "LetterLTL0-v0/genz"], env=env, cwd=tmp_path,
-                              capture_output=True, text=True, check=False)
-        assert done.returncode == 0, done.stderr + done.stdout
+        done = subprocess.run(["bash", str(BENCHMARKS / "device_reproduce.sh"), *args], env=env,
+                              cwd=tmp_path, capture_output=True, text=True, check=False)
         (log,) = out.glob("reproduce_*.log")
-        assert "LetterLTL0-v0/genz" in log.read_text() and "PointLTL0-v0" not in log.read_text()
         with tarfile.open(out / "cells.tar.gz") as tar:
-            return [n for n in tar.getnames() if tar.getmember(n).isfile()]
+            files = [n for n in tar.getnames() if tar.getmember(n).isfile()]
+        return done.returncode, log.read_text(), files
 
-    assert call() == []  # the package's store, copied: nothing written yet
-    assert (store / "LetterLTL0-v0__genz" / "cell.json").exists()
+    listing = ("--list", "--cells", "LetterLTL0-v0/genz")
+    rc, log, files = call(*listing)
+    assert rc == 0 and files == []  # the package's store, copied: nothing written yet
+    assert "LetterLTL0-v0/genz" in log and "PointLTL0-v0" not in log and "done" in log
+    cell = store / "LetterLTL0-v0__genz"
     (store / "scratch" / "Demo__x").mkdir(parents=True)
     (store / "scratch" / "Demo__x" / "checkpoint.msgpack").write_bytes(b"\0")
-    (store / "LetterLTL0-v0__genz" / "params_seed1.msgpack").write_bytes(b"\0" * (2 << 20))
-    (store / "LetterLTL0-v0__genz" / "cell.json").write_text("{}")
-    assert call() == ["./LetterLTL0-v0__genz/cell.json"]
+    (cell / "params_seed1.msgpack").write_bytes(b"\0" * (2 << 20))
+    (cell / "notes.json").write_text("{}")
+    (cell / "cell.json").unlink()
+    rc, log, files = call(*listing)
+    assert rc == 0 and files == ["./LetterLTL0-v0__genz/notes.json"]
+    assert "missing" in log  # reproduce read the copied store
+    assert "left behind (too large): ./LetterLTL0-v0__genz/params_seed1.msgpack" in log
+    assert "deleted by the run: ./LetterLTL0-v0__genz/cell.json" in log
+    rc, log, files = call("--seed-range", "5-1")
+    assert rc != 0 and files == ["./LetterLTL0-v0__genz/notes.json"]
 
 
 def test_curve_agreement_compares_whole_windows_of_matched_updates(tmp_path):

@@ -186,6 +186,8 @@ def test_the_phase_after_training_waits_for_the_last_update(dot_and_reach, tmp_p
     params, summary = experiment.train("reach", "DotLTL-v0", run, overrides, map_bank=None,
                                        log=lambda _: None, max_wall_s=0.0)
     assert not summary["complete"] and finished == [] and "extra" not in params
+    assert not (run / "params.msgpack").exists()  # the policy alone is not the method's params
     params, summary = experiment.train("reach", "DotLTL-v0", run, overrides, map_bank=None,
                                        log=lambda _: None)
     assert summary["complete"] and len(finished) == 1 and "extra" in params
+    assert (run / "params.msgpack").exists()

@@ -222,7 +222,8 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     `restart` discards a run directory's earlier run (else it is resumed if its settings match).
     `max_wall_s` stops training at the first checkpoint after that many seconds of this call,
     set-up included (resumable; a phase after training, `MethodSpec.finish_training`, waits for
-    the run's last update). `on_compiled()` runs once the training step has compiled,
+    the run's last update: until then the policy's parameters are returned and no
+    `params.msgpack` is written). `on_compiled()` runs once the training step has compiled,
     before it runs: host work that would slow the compilation down (another compilation).
     The env batch is sharded over `devices` (default: every device, of every process in a job
     of several; `num_envs` must divide by their count), parameters replicated; the result does
@@ -298,7 +299,10 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         "time_to_success": time_to_levels(rows),
     }
     if hosts.is_writer():
-        save_params(Path(run_dir) / "params.msgpack", params)
+        if complete or spec.finish_training is None:
+            save_params(Path(run_dir) / "params.msgpack", params)
+        else:  # the policy alone does not load as the method's parameters
+            (Path(run_dir) / "params.msgpack").unlink(missing_ok=True)
         (Path(run_dir) / "train_summary.json").write_text(json.dumps(summary, indent=1))
     hosts.barrier("parameters written")
     return params, summary

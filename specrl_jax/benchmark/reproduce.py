@@ -230,7 +230,9 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
             if writer:
                 if 1 in seeds:
                     store.trajectories_path(cell).unlink(missing_ok=True)
-                    _save_seed1(params, store.params_path(cell))
+                    store.params_path(cell).unlink(missing_ok=True)
+                    if summary["complete"]:  # a stopped GCRL-LTL training holds its policy alone
+                        _save_seed1(params, store.params_path(cell))
                 if whole or summary["complete"]:  # a part's curve joins the others once whole
                     _store_curve(store, cell, run_dir, None if whole else curve_seeds, seeds)
                 store.write(cell, record)
@@ -320,6 +322,7 @@ def _store_curve(store: Store, cell: Cell, run_dir: Path, held_seeds: list[int] 
     if not (run_dir / "metrics.jsonl").exists():
         return
     path = store.curve_path(cell)
+    path.parent.mkdir(parents=True, exist_ok=True)
     held = read_metrics(path.parent) if held_seeds and path.exists() else []
     if held and len(held[0].get("success_rate_seeds", held_seeds)) == len(held_seeds):
         rows = merge_curves([(held_seeds, held), (seeds, read_metrics(run_dir))])
@@ -527,7 +530,8 @@ def shrink(cells: Sequence[Cell], **changes: Any) -> list[Cell]:
 
 def format_list(cells: Sequence[Cell], store: Store | None = None) -> str:
     """The grid with each cell's state and estimated GPU time (a partial cell's: that of the
-    seeds it lacks, trained as one part)."""
+    seeds it lacks, trained as one part with `--seed-range`; without it the cell is retrained
+    whole)."""
     store = store or Store()
     rows = [f"{'cell':44s} {'step':>4s} {'state':8s} {'seeds':>5s} {'est. GPU':>9s}"]
     todo, rates = 0.0, estimate.measured_rates()
@@ -543,7 +547,8 @@ def format_list(cells: Sequence[Cell], store: Store | None = None) -> str:
                     f"{_duration(seconds):>9s}")
     done = sum(store.state(c) == "done" for c in cells)
     rows.append(f"{len(cells)} cells: {done} done, {len(cells) - done} to run, "
-                f"about {_duration(todo)} of GPU time (one GPU)")
+                f"about {_duration(todo)} of GPU time (one GPU; partial cells completed with "
+                "--seed-range)")
     return "\n".join(rows)
 
 

@@ -218,6 +218,7 @@ def test_a_time_limit_stops_training_and_evaluation_and_the_same_call_resumes(tm
                        deadline=time.monotonic())
     assert out_of_time.limits == [0.0] and out_of_time.evaluated == []
     assert store.state(CELL) == "partial" and not store.read(CELL)["training"]["complete"]
+    assert not store.params_path(CELL).exists()  # a stopped training's are not the method's yet
     slow = Fakes(train_s=0.5)  # trains to the end but past the limit: no evaluation, no next cell
     lines = []
     states = reproduce.reproduce(cells=[CELL, other], store=store, gpus=1, log=lines.append,
@@ -225,6 +226,7 @@ def test_a_time_limit_stops_training_and_evaluation_and_the_same_call_resumes(tm
                                  load=slow.load, trajectories=False)
     assert states == {CELL.name: "partial", other.name: "missing"}
     assert slow.trained == 1 and 0.0 < slow.limits[0] <= 0.2 and slow.evaluated == []
+    assert store.params_path(CELL).exists()
     assert any("time limit reached before evaluating" in line for line in lines)
     assert any(f"{other.name} not started" in line for line in lines)
     rest = Fakes()
