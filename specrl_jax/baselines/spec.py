@@ -44,9 +44,10 @@ class MethodSpec:
         prepare_training: `(method, key, config, log, saved) -> method`, a phase before PPO;
             `saved` (a path in the run directory, or None) keeps its result for a resumed run.
         finish_training: `(method, params, key, config, log, program_key, first_seed) ->
-            params`, a phase after PPO; `program_key` (or None) names its traced programs on
-            disk (`compile_log.compile_logged`); the seeds are seeds `first_seed` on of a run
-            (`runs.seed_keys`).
+            params`, a phase after PPO, run once PPO reached its last update (a run stopped
+            before has the policy's parameters alone and saves none); `program_key` (or None)
+            names its traced programs on disk (`compile_log.compile_logged`); the seeds are seeds
+            `first_seed` on of a run (`runs.seed_keys`).
         param_shapes: `(method, policy_shapes) -> shapes`, where the saved parameters hold more
             than the PPO network's.
         usable_suites: `(suites, log) -> suites`, the suites the method can be evaluated on.
