@@ -277,12 +277,14 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
     rows = runs.read_metrics(run_dir)
     params, updates = hosts.host_copy((runner.params, runner.update))
     complete = int(updates[0]) >= config.num_updates
-    if spec.finish_training is not None and complete:  # GCRL-LTL's values, on the whole policy
-        params = spec.finish_training(method_obj, params, key_train, config, log, programs,
-                                      first_seed)
-    elif spec.finish_training is not None:
+    # the phase after training (GCRL-LTL's values) waits for the whole policy
+    policy_only = spec.finish_training is not None and not complete
+    if policy_only:
         log("training stopped early: the phase after training runs once the run resumes to its "
             "last update")
+    elif spec.finish_training is not None:
+        params = spec.finish_training(method_obj, params, key_train, config, log, programs,
+                                      first_seed)
     summary = {
         "method": method, "env": env_id, "num_seeds": num_seeds,
         "seeds": list(range(first_seed, first_seed + num_seeds)), "ppo": dataclasses.asdict(config),
@@ -299,10 +301,10 @@ def train(method: str, env_id: str, run_dir: str | Path, ppo_overrides: dict[str
         "time_to_success": time_to_levels(rows),
     }
     if hosts.is_writer():
-        if complete or spec.finish_training is None:
-            save_params(Path(run_dir) / "params.msgpack", params)
-        else:  # the policy alone does not load as the method's parameters
+        if policy_only:  # the policy alone does not load as the method's parameters
             (Path(run_dir) / "params.msgpack").unlink(missing_ok=True)
+        else:
+            save_params(Path(run_dir) / "params.msgpack", params)
         (Path(run_dir) / "train_summary.json").write_text(json.dumps(summary, indent=1))
     hosts.barrier("parameters written")
     return params, summary

@@ -230,9 +230,10 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
             if writer:
                 if 1 in seeds:
                     store.trajectories_path(cell).unlink(missing_ok=True)
-                    store.params_path(cell).unlink(missing_ok=True)
-                    if summary["complete"]:  # a stopped GCRL-LTL training holds its policy alone
+                    if summary["complete"]:
                         _save_seed1(params, store.params_path(cell))
+                    else:  # not the trained parameters (a stopped GCRL-LTL's: its policy alone)
+                        store.params_path(cell).unlink(missing_ok=True)
                 if whole or summary["complete"]:  # a part's curve joins the others once whole
                     _store_curve(store, cell, run_dir, None if whole else curve_seeds, seeds)
                 store.write(cell, record)
