@@ -270,8 +270,11 @@ def merge_training(training: dict[str, Any], summary: dict[str, Any], num_seeds:
         raise ValueError(problem)
     parts = training_parts(training)
     label = _seed_label(summary["seeds"])
+    # a stopped part's env_steps_per_seed counts the steps taken so far
+    settings = [k for k in PART_SETTINGS
+                if summary.get("complete", True) or k != "env_steps_per_seed"]
     for held_label, held in parts.items():
-        differ = [k for k in PART_SETTINGS if held_label != label and held.get("complete")
+        differ = [k for k in settings if held_label != label and held.get("complete")
                   and k in held and k in summary and _differs(held[k], summary[k])]
         if differ:
             raise ValueError(f"seeds {label} were trained with other {', '.join(differ)} than "

@@ -452,6 +452,17 @@ def test_parts_trained_with_other_settings_are_not_merged():
     assert merged["env_steps_per_s"] == pytest.approx(300 / (200 / 10.0 + 100 / 5.0))
 
 
+def test_a_stopped_part_joins_the_held_seeds_until_it_resumes():
+    held = {"num_seeds": 2, "complete": True, "ppo": {"num_envs": 512},
+            "env_steps_per_seed": 100, "env_steps_per_s": 10.0}
+    stopped = {"seeds": [3], "complete": False, "ppo": {"num_envs": 512},
+               "env_steps_per_seed": 40, "env_steps_per_s": 5.0}
+    merged = store_lib.merge_training(held, stopped, 3)
+    assert not merged["complete"] and merged["seeds"] == [1, 2]
+    with pytest.raises(ValueError, match="other env_steps_per_seed than the held seeds 1-2"):
+        store_lib.merge_training(held, {**stopped, "complete": True}, 3)
+
+
 @pytest.mark.parametrize("text", ["0-2", "3-1", "two", "1-"])
 def test_a_seed_range_that_is_not_one_is_refused(text, capsys):
     with pytest.raises(SystemExit):

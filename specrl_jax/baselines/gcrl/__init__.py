@@ -374,9 +374,11 @@ def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig
     cfg = value_config(method, config.total_timesteps)
     num_seeds = jax.tree.leaves(params)[0].shape[0]
     keys = seed_keys(jax.random.fold_in(key, 15), num_seeds, first_seed)
-    train = compile_logged(jax.vmap(lambda p, k: train_value_function(method, p, k, cfg)),
-                           (params, keys), "the GCVF's data collection and fit", log,
-                           program_key)
+    # one seed after the other: an image world's rollouts (128 x 1,000 frames a seed) fill tens of
+    # GB, and vmapped seeds multiply them
+    train = compile_logged(
+        lambda ps, ks: jax.lax.map(lambda pk: train_value_function(method, *pk, cfg), (ps, ks)),
+        (params, keys), "the GCVF's data collection and fit", log, program_key)
     gcvf, stats = jax.device_get(train(params, keys))
     log(f"GCVF: {cfg.num_updates} updates on {[int(s) for s in stats['samples']]} samples per "
         f"seed; L1 loss {np.round(stats['loss_first'], 4).tolist()} -> "
