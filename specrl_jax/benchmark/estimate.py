@@ -10,7 +10,8 @@ resumes included):
   robot's extra physics time per env step over Point's (`ENV_RATES`);
 - else GenZ-LTL's rate on the world times the method's rate over GenZ-LTL's on PointLTL2 (else
   PointLTL0), whose cells all trained on one device with bank resets;
-- on a world without a trained cell, its auto-reset env-steps/s times `TRAIN_PER_ENV_STEP`, the
+- on a world without a trained cell, GenZ-LTL's profiled training rate there (`PROFILED_RATES`)
+  times that method factor, else its auto-reset env-steps/s times `TRAIN_PER_ENV_STEP`, the
   ratio of GenZ-LTL's training rate to the env's on PointLTL0 (0.153) and CarLTL0 (0.165).
 
 Evaluation and set-up add `EVAL_S` and `SETUP_S`.
@@ -31,6 +32,9 @@ ENV_RATES: dict[str, float] = {
     "AntLTL0-v0": 300_845,  # H200, batch 262,144, MuJoCo Warp
 }
 TRAIN_PER_ENV_STEP = 0.16
+#: env ID -> GenZ-LTL's profiled training env-steps/s at the grid's shape, 5 seeds on one GPU,
+#: for a world the store has not trained on (results.md, Training speed; H200)
+PROFILED_RATES: dict[str, float] = {"AntLTL0-v0": 69_794}
 VISION_BASE = "PointLTL0Vision-v0"
 #: measured evaluation wall time of a cell's suites, 5 seeds x 100 episodes, compilation included
 #: where it followed the training (the image world's: DeepLTL's cell, its evaluator compiled
@@ -84,6 +88,8 @@ def training_rate(c: Cell, rates: Mapping[str, float] | None = None) -> float:
         env = env.replace("Vision", "")
     if f"{env}/genz" in rates:
         return rates[f"{env}/genz"] * _method_factor(key, rates)
+    if env in PROFILED_RATES:
+        return PROFILED_RATES[env] * _method_factor(key, rates)
     return ENV_RATES.get(env, ENV_RATES["PointLTL0-v0"]) * TRAIN_PER_ENV_STEP * _method_factor(key, rates)
 
 

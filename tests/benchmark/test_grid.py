@@ -67,9 +67,13 @@ def test_estimates_come_from_the_rates_the_store_measured(tmp_path):
         75e6 / 700e3 + estimate.SETUP_S + estimate.EVAL_S["PointLTL0-v0"])
     # an unmeasured cell: its world's GenZ-LTL rate times the method's ratio on PointLTL2
     assert estimate.training_rate(grid.cell("CarLTL0-v0/gcrl"), rates) == pytest.approx(190e3 * 0.8)
-    # a world without a trained cell: the env's rate times the training-to-env ratio
+    # a world without a trained cell: GenZ-LTL's profiled training rate there, else the env's
+    # rate times the training-to-env ratio
     assert estimate.training_rate(grid.cell("AntLTL0-v0/gcrl"), rates) == pytest.approx(
-        estimate.ENV_RATES["AntLTL0-v0"] * estimate.TRAIN_PER_ENV_STEP * 0.8)
+        estimate.PROFILED_RATES["AntLTL0-v0"] * 0.8)
+    no_car = {k: v for k, v in rates.items() if not k.startswith("CarLTL0-v0/")}
+    assert estimate.training_rate(grid.cell("CarLTL0-v0/gcrl"), no_car) == pytest.approx(
+        estimate.ENV_RATES["CarLTL0-v0"] * estimate.TRAIN_PER_ENV_STEP * 0.8)
     # an image cell trains at DeepLTL's image pace (every epoch); another robot adds its physics'
     # time per env step and its LiDAR world's evaluation time over Point's
     gcrl = grid.cell("PointLTL0Vision-v0/gcrl")
