@@ -82,6 +82,30 @@ def test_gcrl_learns_a_tiny_world_and_its_agent_follows_specs():
     assert (success > 0.6).all() and violation[2] < 0.3, (success, violation)
 
 
+def test_gcvf_seeds_run_side_by_side_unless_their_rollouts_are_too_large(monkeypatch):
+    cfg = gcrl.ValueConfig(num_envs=128, num_steps=1000, num_updates=1)
+    for env_id, options, expected in (("PointLTL0-v0", {}, 5),
+                                      ("PointLTL0Vision-v0", {"image_size": 64}, 1)):
+        world, params = specrl_jax.make(env_id, **options)
+        method = gcrl.make_method(world, params, "zone")
+        assert gcrl.gcvf_seeds_at_once(method, cfg, 5) == expected, env_id
+
+    # one seed at a time fits the same value functions as all side by side
+    world, params = _tiny_world()
+    method = gcrl.make_method(world, params, trunk=(16,), value_features=(16,))
+    obs, _ = method.env.reset(jax.random.key(0), method.init_task_params())
+    one = jax.tree.map(lambda x: x[None], obs)
+    policy = jax.vmap(lambda k: method.network.init(k, one))(jax.random.split(jax.random.key(1), 2))
+    ppo = gcrl.ppo_config(total_timesteps=3000)
+    together = gcrl.finish_training(method, policy, jax.random.key(3), ppo, log=lambda line: None)
+    monkeypatch.setattr(gcrl, "GCVF_BATCH_BYTES", 1)
+    apart = gcrl.finish_training(method, policy, jax.random.key(3), ppo, log=lambda line: None)
+    for a, b in zip(jax.tree.leaves(together["gcvf"]), jax.tree.leaves(apart["gcvf"]), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
+    assert not np.allclose(jax.tree.leaves(together["gcvf"])[0][0],
+                           jax.tree.leaves(together["gcvf"])[0][1])  # the seeds differ
+
+
 class _Stub:
     """A network answering `GoalObs` batches with the logits and values per goal in `params`."""
 
@@ -190,7 +214,7 @@ def test_agent_visits_acceptance_on_infinite_specs_and_takes_the_persistence_jum
     assert bool(automata.has_epsilon(spec, spec.init))
     jumped = int(spec.epsilon[spec.init, 0])
     task = TaskEnv(world, automata.stack([spec]))
-    states, alive = record_episodes(policy, task, params, jax.random.split(jax.random.key(3), 8),
+    states, _alive = record_episodes(policy, task, params, jax.random.split(jax.random.key(3), 8),
                                     jnp.zeros(8, jnp.int32), policy_params=net)
     q = np.asarray(states.q)
     assert (q[:, -1] == jumped).all() and (q[:, 0] != jumped).all(), q

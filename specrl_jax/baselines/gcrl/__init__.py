@@ -55,6 +55,9 @@ from specrl_jax.tasks import SequenceSource, StatefulPolicy, TaskEnv
 GOAL_DIM = 24
 GOAL_SEED = 20231
 VALUE_THRESHOLD = 0.85
+#: the GCVF rollouts' states fitted side by side at most: three seeds of a 64 x 64 camera's
+#: (19 GB) ran an H200 out of memory, their fit asking for 35 GiB more
+GCVF_BATCH_BYTES = 8 * 2**30
 PLANNERS = ("intended", "as_coded")  # test-time search: the original's description, or its code
 #: one-goal training tasks: reach one proposition, avoid nothing, uniformly over propositions
 REACH_ONE = Curriculum("gcrl/reach", (Stage((GenZSubgoals(max_avoid=0),)),))
@@ -365,6 +368,14 @@ def prepare_training(method: GCRL, key: jax.Array, config: PPOConfig,
                        image_dtype=method.network.image_dtype)
 
 
+def gcvf_seeds_at_once(method: GCRL, cfg: ValueConfig, num_seeds: int) -> int:
+    """How many seeds' GCVFs collect and fit side by side: all, unless their rollouts' states
+    (float32, `cfg.num_envs x cfg.num_steps` a seed) pass `GCVF_BATCH_BYTES` together; at
+    least one. A 64 x 64 camera's take 6.3 GB a seed, a LiDAR world's 0.1 GB."""
+    per_seed = cfg.num_envs * cfg.num_steps * state_width(method) * 4
+    return int(max(1, min(num_seeds, GCVF_BATCH_BYTES // per_seed)))
+
+
 def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig,
                     log: Callable[[str], None] = print, program_key: str | None = None,
                     first_seed: int = 1) -> dict[str, Any]:
@@ -374,10 +385,10 @@ def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig
     cfg = value_config(method, config.total_timesteps)
     num_seeds = jax.tree.leaves(params)[0].shape[0]
     keys = seed_keys(jax.random.fold_in(key, 15), num_seeds, first_seed)
-    # one seed after the other: an image world's rollouts (128 x 1,000 frames a seed) fill tens of
-    # GB, and vmapped seeds multiply them
+    side_by_side = gcvf_seeds_at_once(method, cfg, num_seeds)
     train = compile_logged(
-        lambda ps, ks: jax.lax.map(lambda pk: train_value_function(method, *pk, cfg), (ps, ks)),
+        lambda ps, ks: jax.lax.map(lambda pk: train_value_function(method, *pk, cfg), (ps, ks),
+                                   batch_size=side_by_side),
         (params, keys), "the GCVF's data collection and fit", log, program_key)
     gcvf, stats = jax.device_get(train(params, keys))
     log(f"GCVF: {cfg.num_updates} updates on {[int(s) for s in stats['samples']]} samples per "
@@ -390,10 +401,15 @@ def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig
     return out
 
 
+def state_width(method: GCRL) -> int:
+    """Length of the flat observation the GCVF reads (`flat_state` of the parts)."""
+    obs, _ = jax.eval_shape(method.env.reset, jax.random.key(0), method.init_task_params())
+    return sum(int(np.prod(x.shape)) for x in jax.tree.leaves(obs.parts))
+
+
 def param_shapes(method: GCRL, policy_shapes: Any) -> dict[str, Any]:
     """The shapes of `finish_training`'s parameters for one seed, from the policy's."""
-    obs, _ = jax.eval_shape(method.env.reset, jax.random.key(0), method.init_task_params())
-    width = sum(int(np.prod(x.shape)) for x in jax.tree.leaves(obs.parts)) + 2 * GOAL_DIM
+    width = state_width(method) + 2 * GOAL_DIM
     gcvf = jax.eval_shape(method.value_network.init, jax.random.key(0),
                           jax.ShapeDtypeStruct((1, width), jnp.float32))
     out = {"policy": policy_shapes, "gcvf": gcvf}
