@@ -33,7 +33,8 @@ ENV_RATES: dict[str, float] = {
 }
 TRAIN_PER_ENV_STEP = 0.16
 #: env ID -> GenZ-LTL's profiled training env-steps/s at the grid's shape, 5 seeds on one GPU,
-#: for a world the store has not trained on (results.md, Training speed; H200)
+#: for a world the store has not trained on (results.md, Training speed; H200): a steady rate,
+#: without the compilation and resumes of a cell's (cells ran about 6% below their steady rate)
 PROFILED_RATES: dict[str, float] = {"AntLTL0-v0": 69_794}
 VISION_BASE = "PointLTL0Vision-v0"
 #: measured evaluation wall time of a cell's suites, 5 seeds x 100 episodes, compilation included

@@ -263,7 +263,8 @@ def merge_training(training: dict[str, Any], summary: dict[str, Any], num_seeds:
 
     Raises:
         ValueError: the part shares some seeds with a held part (`part_conflict`), or was
-            trained with other settings (`PART_SETTINGS`) than the held parts.
+            trained with other settings (`PART_SETTINGS`) than the held complete parts (a
+            stopped part's `env_steps_per_seed`, its progress, is not compared).
     """
     problem = part_conflict(training, summary["seeds"])
     if problem:
@@ -283,7 +284,9 @@ def merge_training(training: dict[str, Any], summary: dict[str, Any], num_seeds:
     done = trained_seeds({"parts": parts})
     timed = [p for p in parts.values() if p.get("env_steps_per_s")]
     steps = [p.get("env_steps_per_seed", 0) * len(p["seeds"]) for p in timed]
-    merged = {k: summary[k] for k in (*PART_SETTINGS, "physics") if k in summary}
+    # the settings of a complete part, if any (a stopped part's env_steps_per_seed is progress)
+    settled = next((p for p in parts.values() if p.get("complete")), summary)
+    merged = {k: settled[k] for k in (*PART_SETTINGS, "physics") if k in settled}
     merged.update(parts=parts, seeds=done, num_seeds=len(done),
                   complete=done == list(range(1, num_seeds + 1)),
                   env_steps_per_s=sum(steps) / sum(

@@ -97,9 +97,12 @@ def test_gcvf_seeds_run_side_by_side_unless_their_rollouts_are_too_large(monkeyp
     one = jax.tree.map(lambda x: x[None], obs)
     policy = jax.vmap(lambda k: method.network.init(k, one))(jax.random.split(jax.random.key(1), 2))
     ppo = gcrl.ppo_config(total_timesteps=3000)
-    together = gcrl.finish_training(method, policy, jax.random.key(3), ppo, log=lambda line: None)
+    lines = []
+    together = gcrl.finish_training(method, policy, jax.random.key(3), ppo, log=lines.append)
     monkeypatch.setattr(gcrl, "GCVF_BATCH_BYTES", 1)
-    apart = gcrl.finish_training(method, policy, jax.random.key(3), ppo, log=lambda line: None)
+    apart = gcrl.finish_training(method, policy, jax.random.key(3), ppo, log=lines.append)
+    side_by_side = [line.split("(")[1].split()[0] for line in lines if line.startswith("GCVF (")]
+    assert side_by_side == ["2", "1"], lines
     for a, b in zip(jax.tree.leaves(together["gcvf"]), jax.tree.leaves(apart["gcvf"]), strict=True):
         np.testing.assert_allclose(a, b, rtol=1e-4, atol=1e-5)
     assert not np.allclose(jax.tree.leaves(together["gcvf"])[0][0],

@@ -459,6 +459,7 @@ def test_a_stopped_part_joins_the_held_seeds_until_it_resumes():
                "env_steps_per_seed": 40, "env_steps_per_s": 5.0}
     merged = store_lib.merge_training(held, stopped, 3)
     assert not merged["complete"] and merged["seeds"] == [1, 2]
+    assert merged["env_steps_per_seed"] == 100  # the trained seeds', not the stopped part's
     with pytest.raises(ValueError, match="other env_steps_per_seed than the held seeds 1-2"):
         store_lib.merge_training(held, {**stopped, "complete": True}, 3)
 

@@ -55,8 +55,9 @@ from specrl_jax.tasks import SequenceSource, StatefulPolicy, TaskEnv
 GOAL_DIM = 24
 GOAL_SEED = 20231
 VALUE_THRESHOLD = 0.85
-#: the GCVF rollouts' states fitted side by side at most: three seeds of a 64 x 64 camera's
-#: (19 GB) ran an H200 out of memory, their fit asking for 35 GiB more
+#: the GCVF rollouts' stored states (bytes) of the seeds fitted side by side, at most: the peak
+#: is about twice that; three seeds of a 64 x 64 camera's (18.9 GB) ran an H200 out of memory,
+#: asking for 35 GiB more, where two (12.7 GB) fitted
 GCVF_BATCH_BYTES = 8 * 2**30
 PLANNERS = ("intended", "as_coded")  # test-time search: the original's description, or its code
 #: one-goal training tasks: reach one proposition, avoid nothing, uniformly over propositions
@@ -370,8 +371,10 @@ def prepare_training(method: GCRL, key: jax.Array, config: PPOConfig,
 
 def gcvf_seeds_at_once(method: GCRL, cfg: ValueConfig, num_seeds: int) -> int:
     """How many seeds' GCVFs collect and fit side by side: all, unless their rollouts' states
-    (float32, `cfg.num_envs x cfg.num_steps` a seed) pass `GCVF_BATCH_BYTES` together; at
-    least one. A 64 x 64 camera's take 6.3 GB a seed, a LiDAR world's 0.1 GB."""
+    (float32[num_steps, num_envs, D] a seed) pass `GCVF_BATCH_BYTES` together; at least one.
+    For a 15M-step run on a 1,000-step Zone world (128 envs x 1,000 steps) a 64 x 64 camera's
+    take 6.3 GB a seed, LiDAR's 0.04-0.06 GB, so LiDAR seeds fit together, camera seeds one
+    at a time."""
     per_seed = cfg.num_envs * cfg.num_steps * state_width(method) * 4
     return int(max(1, min(num_seeds, GCVF_BATCH_BYTES // per_seed)))
 
@@ -379,8 +382,8 @@ def gcvf_seeds_at_once(method: GCRL, cfg: ValueConfig, num_seeds: int) -> int:
 def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig,
                     log: Callable[[str], None] = print, program_key: str | None = None,
                     first_seed: int = 1) -> dict[str, Any]:
-    """After PPO: train each seed's GCVF (leading seed axis on `params`, seeds `first_seed` on);
-    returns `{"policy": params, "gcvf": gcvf params}`, what `make_policy` reads. `program_key`
+    """After PPO: train each seed's GCVF (leading seed axis on `params`, seeds `first_seed` on),
+    `gcvf_seeds_at_once` of them side by side; returns `{"policy": params, "gcvf": gcvf params}`, what `make_policy` reads. `program_key`
     names the traced program on disk (`compile_logged`)."""
     cfg = value_config(method, config.total_timesteps)
     num_seeds = jax.tree.leaves(params)[0].shape[0]
@@ -391,7 +394,7 @@ def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig
                                    batch_size=side_by_side),
         (params, keys), "the GCVF's data collection and fit", log, program_key)
     gcvf, stats = jax.device_get(train(params, keys))
-    log(f"GCVF: {cfg.num_updates} updates on {[int(s) for s in stats['samples']]} samples per "
+    log(f"GCVF ({side_by_side} seed(s) side by side): {cfg.num_updates} updates on {[int(s) for s in stats['samples']]} samples per "
         f"seed; L1 loss {np.round(stats['loss_first'], 4).tolist()} -> "
         f"{np.round(stats['loss_last'], 4).tolist()}")
     out = {"policy": params, "gcvf": gcvf}
