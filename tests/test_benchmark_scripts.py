@@ -112,14 +112,24 @@ def test_device_prelude_parses():
 def test_device_reproduce_starts_from_the_package_store_and_brings_back_what_it_wrote(tmp_path):
     """`device_reproduce.sh` runs `reproduce` with its arguments on a store copied from the
     package's, packs for $OUT the files written since, without scratch/ or files over KEEP_MB
-    (listed in the log, as are files the run deleted), and exits with reproduce's status."""
+    (listed in the log, as are files the run deleted), and exits with reproduce's status. The
+    run directories of cells not done come back apart (scratch.tar.gz), and carried ones start
+    a new machine's store."""
     import tarfile
 
     site, store, out = tmp_path / "site", tmp_path / "store", tmp_path / "out"
+    carried = tmp_path / "carried"
     site.mkdir()
     (site / ".installed").touch()  # the packages are there: the prelude installs nothing
     env = {**os.environ, "SPECRL_SITE": str(site), "STORE": str(store), "OUT": str(out),
-           "KEEP_MB": "1", "PATH": f"{pathlib.Path(sys.executable).parent}:{os.environ['PATH']}"}
+           "KEEP_MB": "1", "CARRIED": str(carried),
+           "PATH": f"{pathlib.Path(sys.executable).parent}:{os.environ['PATH']}"}
+
+    def packed(name: str) -> list[str]:
+        if not (out / name).exists():
+            return []
+        with tarfile.open(out / name) as tar:
+            return sorted(n for n in tar.getnames() if tar.getmember(n).isfile())
 
     def call(*args: str) -> tuple[int, str, list[str]]:
         if out.exists():
@@ -129,9 +139,7 @@ def test_device_reproduce_starts_from_the_package_store_and_brings_back_what_it_
         done = subprocess.run(["bash", str(BENCHMARKS / "device_reproduce.sh"), *args], env=env,
                               cwd=tmp_path, capture_output=True, text=True, check=False)
         (log,) = out.glob("reproduce_*.log")
-        with tarfile.open(out / "cells.tar.gz") as tar:
-            files = [n for n in tar.getnames() if tar.getmember(n).isfile()]
-        return done.returncode, log.read_text(), files
+        return done.returncode, log.read_text(), packed("cells.tar.gz")
 
     listing = ("--list", "--cells", "LetterLTL0-v0/genz")
     rc, log, files = call(*listing)
@@ -148,8 +156,32 @@ def test_device_reproduce_starts_from_the_package_store_and_brings_back_what_it_
     assert "missing" in log  # reproduce read the copied store
     assert "left behind (too large): ./LetterLTL0-v0__genz/params_seed1.msgpack" in log
     assert "deleted by the run: ./LetterLTL0-v0__genz/cell.json" in log
+    # the run of a cell not done comes back, without files over KEEP_MB; a done cell's stays
+    assert packed("scratch.tar.gz") == []
+    run = store / "scratch" / "LetterLTL0-v0__genz" / "run"
+    run.mkdir(parents=True)
+    (run / "checkpoint.msgpack").write_bytes(b"\1")
+    (run / "big.msgpack").write_bytes(b"\0" * (2 << 20))
+    (store / "scratch" / "PointLTL0-v0__genz").mkdir()
+    rc, log, files = call(*listing)
+    assert packed("scratch.tar.gz") == ["LetterLTL0-v0__genz/run/checkpoint.msgpack"]
+    assert "left behind (too large): ./scratch/LetterLTL0-v0__genz/run/big.msgpack" in log
+    assert "resumable run brought back (scratch.tar.gz): LetterLTL0-v0__genz" in log
+    assert "PointLTL0-v0__genz" not in log
+    # a new machine's store starts from the carried runs (a run it holds is kept)
+    with tarfile.open(out / "scratch.tar.gz") as tar:
+        tar.extractall(carried, filter="data")
+    (run / "checkpoint.msgpack").write_bytes(b"\2")
+    rc, log, files = call(*listing)
+    assert "resuming from the carried run" not in log
+    assert (run / "checkpoint.msgpack").read_bytes() == b"\2"
+    env["FRESH"] = "1"
+    rc, log, files = call(*listing)
+    assert "resuming from the carried run directory: LetterLTL0-v0__genz" in log
+    assert (run / "checkpoint.msgpack").read_bytes() == b"\1"
+    del env["FRESH"]
     rc, log, files = call("--seed-range", "5-1")
-    assert rc != 0 and files == ["./LetterLTL0-v0__genz/notes.json"]
+    assert rc != 0 and files == []
 
 
 def test_curve_agreement_compares_whole_windows_of_matched_updates(tmp_path):
