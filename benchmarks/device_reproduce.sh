@@ -64,7 +64,8 @@ for run in sorted((store.root / "scratch").glob("*/")):
 EOF
 )
 if [ -n "$resumable" ]; then
-  (cd scratch && find $resumable -type f -size -"$keep_k"k -print | tar czf "$out/scratch.tar.gz" -T -)
+  (cd scratch && find $resumable -type f -size -"$keep_k"k -print \
+    | tar czf "$out/scratch.tar.gz" -T -)
   (cd scratch && find $resumable -type f -size +$((keep_k - 1))k -print) \
     | sed 's|^|left behind (too large): ./scratch/|' | tee -a "$log"
   echo "$resumable" | sed 's/^/resumable run brought back (scratch.tar.gz): /' | tee -a "$log"

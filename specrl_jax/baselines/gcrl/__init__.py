@@ -383,8 +383,9 @@ def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig
                     log: Callable[[str], None] = print, program_key: str | None = None,
                     first_seed: int = 1) -> dict[str, Any]:
     """After PPO: train each seed's GCVF (leading seed axis on `params`, seeds `first_seed` on),
-    `gcvf_seeds_at_once` of them side by side; returns `{"policy": params, "gcvf": gcvf params}`, what `make_policy` reads. `program_key`
-    names the traced program on disk (`compile_logged`)."""
+    `gcvf_seeds_at_once` of them side by side; returns `{"policy": params, "gcvf": gcvf
+    params}`, what `make_policy` reads. `program_key` names the traced program on disk
+    (`compile_logged`)."""
     cfg = value_config(method, config.total_timesteps)
     num_seeds = jax.tree.leaves(params)[0].shape[0]
     keys = seed_keys(jax.random.fold_in(key, 15), num_seeds, first_seed)
@@ -394,8 +395,8 @@ def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig
                                    batch_size=side_by_side),
         (params, keys), "the GCVF's data collection and fit", log, program_key)
     gcvf, stats = jax.device_get(train(params, keys))
-    log(f"GCVF ({side_by_side} seed(s) side by side): {cfg.num_updates} updates on {[int(s) for s in stats['samples']]} samples per "
-        f"seed; L1 loss {np.round(stats['loss_first'], 4).tolist()} -> "
+    log(f"GCVF ({side_by_side} seed(s) side by side): {cfg.num_updates} updates on "
+        f"{[int(s) for s in stats['samples']]} samples per seed; L1 loss {np.round(stats['loss_first'], 4).tolist()} -> "
         f"{np.round(stats['loss_last'], 4).tolist()}")
     out = {"policy": params, "gcvf": gcvf}
     if method.primitives is not None:  # one frozen set, repeated along the seed axis
