@@ -148,6 +148,21 @@ def test_kl_early_stop_limits_epochs():
     assert np.all(m_tight["epochs"] == 1)
 
 
+def test_the_flat_optimizer_matches_clipping_and_adam_per_leaf():
+    import optax
+
+    cfg = PPOConfig(**{**TINY.__dict__, "update_epochs": 2, "loss": "rco", "max_grad_norm": 1e-3})
+    flat, per_leaf = make_train(cfg, ChainMethod()), make_train(cfg, ChainMethod())
+    per_leaf.optimizer = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm),
+                                     optax.adam(cfg.lr, eps=cfg.adam_eps))
+    a, _ = jax.jit(flat)(jax.random.key(3))
+    b, _ = jax.jit(per_leaf)(jax.random.key(3))
+    start = jax.jit(flat.init)(jax.random.key(3)).params
+    assert not np.allclose(jax.tree.leaves(a.params)[0], jax.tree.leaves(start)[0])
+    for x, y in zip(jax.tree.leaves(a.params), jax.tree.leaves(b.params), strict=True):
+        np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-6)
+
+
 def test_a_chunk_traces_the_update_once():
     """The skipped updates' zeros take their shapes from the one trace of the update (a second
     trace of an MJX world's step took seconds to a minute on a CPU)."""
