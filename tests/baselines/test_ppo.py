@@ -347,7 +347,7 @@ def test_image_cnn_in_bfloat16_keeps_float32_parameters_and_stays_near_float32()
     assert jax.tree.structure(half.init(jax.random.key(1), images)) == jax.tree.structure(params)
     loss = {name: jax.jit(jax.value_and_grad(lambda p, x, m=m: jnp.sum(jnp.sin(m.apply(p, x)))))
             for name, m in (("full", full), ("half", half))}
-    (v32, g32), (v16, g16) = loss["full"](params, images), loss["half"](params, images)
+    (_, g32), (_, g16) = loss["full"](params, images), loss["half"](params, images)
     out = half.apply(params, images)
     assert out.dtype == jnp.float32 and out.shape == (4, 32)
     np.testing.assert_allclose(out, full.apply(params, images), rtol=0.05, atol=0.02)
