@@ -6,10 +6,12 @@
 # the same command with --max-minutes resumes where the last one stopped, and a call killed
 # before packing has its files brought back by the next.
 # A cell still training when a machine goes away resumes on the next one: the run directories
-# under the store's scratch/ of cells not yet done come back too (scratch.tar.gz, its files up to
-# KEEP_MB; a LiDAR world's checkpoint is a few MB, an image world's tens); unpack it into
+# under the store's scratch/ of cells not yet done come back too (scratch.tar.gz), each whole or
+# not at all, together at most KEEP_MB (a LiDAR cell's run is a few MB; an image cell's
+# checkpoint, tens, stays behind and its cell trains again from the start); unpack it into
 # .carry/scratch (emptied first) and carry ".carry" in the next machine's first call, whose store
-# then starts from those runs.
+# then starts from those runs. A call returns files of at most 16 MiB and carries at most 64 MiB
+# with the tracked tree (31 MB) and .site (10 MB).
 # Left behind, and listed at the end of the log: the scratch/ of cells that are done and any file
 # over KEEP_MB, e.g. GCRL-LTL's seed-1 parameters at 64 x 64 (68 MB), which the package's store
 # does not keep. Files that the run deleted (a retrained seed 1's parameters and trajectories) are
@@ -17,28 +19,37 @@
 # Usage: bash benchmarks/device_reproduce.sh REPRODUCE_ARGS...
 #   e.g. bash benchmarks/device_reproduce.sh --cells 'PointLTL0Vision-v0/gcrl' --seed-range 3-5 \
 #          --max-minutes 7
-# STORE: the store (default /tmp/store); KEEP_MB: the largest file brought back (default 20, in
-# whole MB); FRESH=1: copy the package's store again (after it changed on this side); CARRIED:
-# the carried run directories (default .carry/scratch).
+# STORE: the store (default /tmp/store); KEEP_MB: the largest file, and the most run directories,
+# brought back (default 15, in whole MB); FRESH=1: copy the package's store again, keeping the
+# store's run directories (after the package's store changed on this side); CARRIED: the carried
+# run directories (default .carry/scratch).
 cd "$(dirname "$0")/.." || exit 1
 root=$PWD
 source benchmarks/device_prelude.sh || exit 1
 store=${STORE:-/tmp/store}
 out=${OUT:?set OUT to the folder whose files come back}
+case $store in /*) ;; *) store=$root/$store ;; esac
+case $out in /*) ;; *) out=$root/$out ;; esac
 log="$out/reproduce_$(date +%Y%m%dT%H%M%S).log"
+kept_runs="$store.scratch.$$"
 if [ -n "${FRESH:-}" ]; then
+  if [ -d "$store/scratch" ]; then mv "$store/scratch" "$kept_runs" || exit 1; fi
   rm -rf "$store"
 fi
 if [ ! -f "$store/.copied" ]; then
   mkdir -p "$store" && cp -r specrl_jax/benchmark/results/. "$store"/ || exit 1
+  if [ -d "$kept_runs" ]; then mv "$kept_runs" "$store/scratch" || exit 1; fi
   touch "$store/.copied"
 fi
 carried=${CARRIED:-.carry/scratch}
 for run in "$carried"/*/; do
   [ -d "$run" ] || continue
   name=$(basename "$run")
-  if [ ! -e "$store/scratch/$name" ]; then
-    mkdir -p "$store/scratch" && cp -r "$run" "$store/scratch/$name" || exit 1
+  if [ -e "$store/scratch/$name" ]; then
+    echo "the store's run directory $name kept (newer than the carried one)" | tee -a "$log"
+  else
+    mkdir -p "$store/scratch" && cp -r "$run" "$store/scratch/.$name.part" \
+      && mv "$store/scratch/.$name.part" "$store/scratch/$name" || exit 1
     echo "resuming from the carried run directory: $name" | tee -a "$log"
   fi
 done
@@ -47,12 +58,12 @@ python3 -c "import jax, flax, mujoco; print('jax', jax.__version__, 'flax', flax
 python3 -m specrl_jax.cli reproduce --store "$store" "$@" 2>&1 | tee -a "$log"
 rc=${PIPESTATUS[0]}
 cd "$store" || exit 1
-keep_k=$((${KEEP_MB:-20} * 1024))
+keep_k=$((${KEEP_MB:-15} * 1024))
 find . -path ./scratch -prune -o -type f -newer .copied -size -"$keep_k"k -print \
   | tar czf "$out/cells.tar.gz" -T -
 find . -path ./scratch -prune -o -type f -newer .copied -size +$((keep_k - 1))k -print \
   | sed 's/^/left behind (too large): /' | tee -a "$log"
-resumable=$(python3 - "$store" <<'EOF'
+resumable=$(python3 - "$store" 2>>"$log" <<'EOF'
 import sys
 from specrl_jax.benchmark import grid
 from specrl_jax.benchmark.store import Store
@@ -62,13 +73,21 @@ for run in sorted((store.root / "scratch").glob("*/")):
     if name in grid.BY_NAME and store.state(grid.cell(name)) != "done":
         print(run.name)
 EOF
-)
-if [ -n "$resumable" ]; then
-  (cd scratch && find $resumable -type f -size -"$keep_k"k -print \
-    | tar czf "$out/scratch.tar.gz" -T -)
-  (cd scratch && find $resumable -type f -size +$((keep_k - 1))k -print) \
-    | sed 's|^|left behind (too large): ./scratch/|' | tee -a "$log"
-  echo "$resumable" | sed 's/^/resumable run brought back (scratch.tar.gz): /' | tee -a "$log"
+) || echo "could not list the resumable run directories (the error is above)" | tee -a "$log"
+runs=()
+total=0
+for name in $resumable; do
+  size=$(du -sk "scratch/$name" | cut -f1)
+  if [ $((total + size)) -le "$keep_k" ]; then
+    runs+=("$name")
+    total=$((total + size))
+  else
+    echo "left behind (too large to come back, ${size} kB): ./scratch/$name" | tee -a "$log"
+  fi
+done
+if [ ${#runs[@]} -gt 0 ]; then
+  (cd scratch && tar czf "$out/scratch.tar.gz" "${runs[@]}")
+  printf 'resumable run brought back (scratch.tar.gz): %s\n' "${runs[@]}" | tee -a "$log"
 fi
 (cd "$root/specrl_jax/benchmark/results" && find . -type f) | while read -r f; do
   [ -e "$f" ] || echo "deleted by the run: $f"

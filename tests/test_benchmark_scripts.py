@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import pathlib
+import shutil
 import subprocess
 import sys
 
@@ -156,30 +157,38 @@ def test_device_reproduce_starts_from_the_package_store_and_brings_back_what_it_
     assert "missing" in log  # reproduce read the copied store
     assert "left behind (too large): ./LetterLTL0-v0__genz/params_seed1.msgpack" in log
     assert "deleted by the run: ./LetterLTL0-v0__genz/cell.json" in log
-    # the run of a cell not done comes back, without files over KEEP_MB; a done cell's stays
+    # the runs of cells not done come back whole, together at most KEEP_MB; a done cell's stays
     assert packed("scratch.tar.gz") == []
     run = store / "scratch" / "LetterLTL0-v0__genz" / "run"
-    run.mkdir(parents=True)
-    (run / "checkpoint.msgpack").write_bytes(b"\1")
+    part = store / "scratch" / "LetterLTL0-v0__deepltl" / "run_seeds3-5"
+    for directory in (run, part):
+        directory.mkdir(parents=True)
+        (directory / "checkpoint.msgpack").write_bytes(b"\1")
+    (store / "LetterLTL0-v0__deepltl" / "cell.json").unlink()
     (run / "big.msgpack").write_bytes(b"\0" * (2 << 20))
     (store / "scratch" / "PointLTL0-v0__genz").mkdir()
     rc, log, files = call(*listing)
-    assert packed("scratch.tar.gz") == ["LetterLTL0-v0__genz/run/checkpoint.msgpack"]
-    assert "left behind (too large): ./scratch/LetterLTL0-v0__genz/run/big.msgpack" in log
-    assert "resumable run brought back (scratch.tar.gz): LetterLTL0-v0__genz" in log
+    assert packed("scratch.tar.gz") == ["LetterLTL0-v0__deepltl/run_seeds3-5/checkpoint.msgpack"]
+    assert "too large to come back" in log and "./scratch/LetterLTL0-v0__genz" in log
     assert "PointLTL0-v0__genz" not in log
-    # a new machine's store starts from the carried runs (a run it holds is kept)
+    (run / "big.msgpack").unlink()
+    rc, log, files = call(*listing)
+    assert packed("scratch.tar.gz") == ["LetterLTL0-v0__deepltl/run_seeds3-5/checkpoint.msgpack",
+                                        "LetterLTL0-v0__genz/run/checkpoint.msgpack"]
+    assert "resumable run brought back (scratch.tar.gz): LetterLTL0-v0__genz" in log
+    # a new machine's store starts from the carried runs; a store's own run is kept, FRESH too
     with tarfile.open(out / "scratch.tar.gz") as tar:
         tar.extractall(carried, filter="data")
     (run / "checkpoint.msgpack").write_bytes(b"\2")
-    rc, log, files = call(*listing)
-    assert "resuming from the carried run" not in log
-    assert (run / "checkpoint.msgpack").read_bytes() == b"\2"
     env["FRESH"] = "1"
+    rc, log, files = call(*listing)
+    del env["FRESH"]
+    assert "resuming from the carried run" not in log and "LetterLTL0-v0__genz kept" in log
+    assert (run / "checkpoint.msgpack").read_bytes() == b"\2"
+    shutil.rmtree(store)
     rc, log, files = call(*listing)
     assert "resuming from the carried run directory: LetterLTL0-v0__genz" in log
     assert (run / "checkpoint.msgpack").read_bytes() == b"\1"
-    del env["FRESH"]
     rc, log, files = call("--seed-range", "5-1")
     assert rc != 0 and files == []
 

@@ -84,7 +84,7 @@ def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerSta
                                  f"this run's is {want.shape}")
     except ValueError as err:
         raise ValueError(f"checkpoint {path} cannot be read ({err}); delete it, or start over "
-                         "with --restart, or use another --out") from err
+                         "with --restart (`reproduce`: --rerun), or use another --out") from err
     restored = jax.tree.map(lambda t, x: hosts.put_like(np.asarray(x), t), raw, restored)
     return restored.replace(key=jax.random.wrap_key_data(restored.key))
 

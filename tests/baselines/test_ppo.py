@@ -158,6 +158,7 @@ def test_the_flat_optimizer_matches_clipping_and_adam_per_leaf():
     a, _ = jax.jit(flat)(jax.random.key(3))
     b, _ = jax.jit(per_leaf)(jax.random.key(3))
     start = jax.jit(flat.init)(jax.random.key(3)).params
+    assert a.opt_state[1][0].mu.ndim == 1 and isinstance(b.opt_state[1][0].mu, dict)
     assert not np.allclose(jax.tree.leaves(a.params)[0], jax.tree.leaves(start)[0])
     for x, y in zip(jax.tree.leaves(a.params), jax.tree.leaves(b.params), strict=True):
         np.testing.assert_allclose(x, y, rtol=1e-5, atol=1e-6)

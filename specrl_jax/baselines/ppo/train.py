@@ -157,7 +157,8 @@ class Trainer:
         self.config, self.method, self.mesh = config, method, mesh
         self.loss_fn = losses.LOSSES[config.loss]
         # clipping and Adam on one flat vector of every parameter: a few kernels per gradient
-        # step instead of a few per leaf (the same arithmetic; the update loop is launch-bound)
+        # step instead of a few per leaf (the update loop is launch-bound); the same arithmetic
+        # but for the order in which the clipping norm is summed
         self.optimizer = optax.flatten(optax.chain(
             optax.clip_by_global_norm(config.max_grad_norm), optax.adam(config.lr, eps=config.adam_eps)
         ))
