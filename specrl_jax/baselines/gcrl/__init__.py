@@ -396,7 +396,8 @@ def finish_training(method: GCRL, params: Any, key: jax.Array, config: PPOConfig
         (params, keys), "the GCVF's data collection and fit", log, program_key)
     gcvf, stats = jax.device_get(train(params, keys))
     log(f"GCVF ({side_by_side} seed(s) side by side): {cfg.num_updates} updates on "
-        f"{[int(s) for s in stats['samples']]} samples per seed; L1 loss {np.round(stats['loss_first'], 4).tolist()} -> "
+        f"{[int(s) for s in stats['samples']]} samples per seed; L1 loss "
+        f"{np.round(stats['loss_first'], 4).tolist()} -> "
         f"{np.round(stats['loss_last'], 4).tolist()}")
     out = {"policy": params, "gcvf": gcvf}
     if method.primitives is not None:  # one frozen set, repeated along the seed axis
