@@ -36,9 +36,23 @@ def fake_result(cell, suite, success=0.75, seeds=None):
     return SuiteResult(cell.env_id, suite, "GenZ-LTL", result)
 
 
+class Clock:
+    """`reproduce`'s clock, which moves only when a fake training says so: a time limit's test
+    then does not depend on how fast the machine running it is."""
+    perf_counter = staticmethod(time.perf_counter)
+    sleep = staticmethod(time.sleep)
+
+    def __init__(self):
+        self.now = 1000.0
+
+    def monotonic(self):
+        return self.now
+
+
 class Fakes:
-    def __init__(self, fail_on=None, train_s=0.0):
+    def __init__(self, fail_on=None, train_s=0.0, clock=None):
         self.trained, self.evaluated, self.fail_on, self.train_s = 0, [], fail_on, train_s
+        self.clock = clock
         self.seeds = []
         self.limits = []
 
@@ -52,7 +66,10 @@ class Fakes:
         if on_compiled is not None:
             on_compiled()
         self.limits.append(max_wall_s)
-        time.sleep(self.train_s)
+        if self.clock is not None:
+            self.clock.now += self.train_s
+        else:
+            time.sleep(self.train_s)
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "params.msgpack").write_bytes(b"")
         rows = [{"update": u, "env_steps": 1024 * u, "wall_s": float(u),
@@ -208,24 +225,27 @@ def test_a_stored_cell_is_evaluated_with_the_options_it_was_trained_with(tmp_pat
     assert store.read(CELL)["config"]["method_options"] == {"image_dtype": "bfloat16"}
 
 
-def test_a_time_limit_stops_training_and_evaluation_and_the_same_call_resumes(tmp_path):
+def test_a_time_limit_stops_training_and_evaluation_and_the_same_call_resumes(tmp_path,
+                                                                               monkeypatch):
+    clock = Clock()
+    monkeypatch.setattr(reproduce, "time", clock)
     store = Store(tmp_path)
     other = dataclasses.replace(grid.cell("LetterLTL0-v0/rad"), seeds=2, total_steps=2048,
                                 episodes=3)
     out_of_time = Fakes()  # the deadline is now: one update, checkpointed, then stop
     reproduce.run_cell(CELL, store, log=lambda line: None, train=out_of_time.train,
                        evaluate=out_of_time.evaluate, load=out_of_time.load, trajectories=False,
-                       deadline=time.monotonic())
+                       deadline=clock.now)
     assert out_of_time.limits == [0.0] and out_of_time.evaluated == []
     assert store.state(CELL) == "partial" and not store.read(CELL)["training"]["complete"]
     assert not store.params_path(CELL).exists()  # a stopped training's are not the method's yet
-    slow = Fakes(train_s=0.5)  # trains to the end but past the limit: no evaluation, no next cell
+    slow = Fakes(train_s=0.5, clock=clock)  # trains to the end but past the limit: no evaluation, no next cell
     lines = []
     states = reproduce.reproduce(cells=[CELL, other], store=store, gpus=1, log=lines.append,
                                  max_minutes=0.2 / 60, train=slow.train, evaluate=slow.evaluate,
                                  load=slow.load, trajectories=False)
     assert states == {CELL.name: "partial", other.name: "missing"}
-    assert slow.trained == 1 and 0.0 < slow.limits[0] <= 0.2 and slow.evaluated == []
+    assert slow.trained == 1 and slow.limits[0] == pytest.approx(0.2) and slow.evaluated == []
     assert store.params_path(CELL).exists()
     assert any("time limit reached before evaluating" in line for line in lines)
     assert any(f"{other.name} not started" in line for line in lines)
