@@ -19,10 +19,11 @@
 # Usage: bash benchmarks/device_reproduce.sh REPRODUCE_ARGS...
 #   e.g. bash benchmarks/device_reproduce.sh --cells 'PointLTL0Vision-v0/gcrl' --seed-range 3-5 \
 #          --max-minutes 7
-# STORE: the store (default /tmp/store); KEEP_MB: the largest file, and the most run directories,
-# brought back (default 15, in whole MB); FRESH=1: copy the package's store again, keeping the
-# store's run directories (after the package's store changed on this side); CARRIED: the carried
-# run directories (default .carry/scratch).
+# STORE: the store (default /tmp/store; a relative path is under the repository root); KEEP_MB:
+# the largest file, and the most run directories, brought back (default and at most 15, in whole
+# MB); FRESH=1: copy the package's store again, keeping the store's run directories (after the
+# package's store changed on this side); CARRIED: the carried run directories (default
+# .carry/scratch).
 cd "$(dirname "$0")/.." || exit 1
 root=$PWD
 source benchmarks/device_prelude.sh || exit 1
@@ -30,17 +31,24 @@ store=${STORE:-/tmp/store}
 out=${OUT:?set OUT to the folder whose files come back}
 case $store in /*) ;; *) store=$root/$store ;; esac
 case $out in /*) ;; *) out=$root/$out ;; esac
+store=${store%/}
 log="$out/reproduce_$(date +%Y%m%dT%H%M%S).log"
-kept_runs="$store.scratch.$$"
+# beside the store, so that removing the store keeps them; a call killed while they are there
+# leaves them for the next call to put back
+kept_runs="$(dirname "$store")/.$(basename "$store").kept_scratch"
+if [ -d "$kept_runs" ] && [ -d "$store/scratch" ]; then
+  echo "run directories in both $kept_runs and $store/scratch: keep one, then call again" >&2
+  exit 1
+fi
 if [ -n "${FRESH:-}" ]; then
   if [ -d "$store/scratch" ]; then mv "$store/scratch" "$kept_runs" || exit 1; fi
   rm -rf "$store"
 fi
 if [ ! -f "$store/.copied" ]; then
   mkdir -p "$store" && cp -r specrl_jax/benchmark/results/. "$store"/ || exit 1
-  if [ -d "$kept_runs" ]; then mv "$kept_runs" "$store/scratch" || exit 1; fi
   touch "$store/.copied"
 fi
+if [ -d "$kept_runs" ]; then mv "$kept_runs" "$store/scratch" || exit 1; fi
 carried=${CARRIED:-.carry/scratch}
 for run in "$carried"/*/; do
   [ -d "$run" ] || continue
@@ -48,8 +56,9 @@ for run in "$carried"/*/; do
   if [ -e "$store/scratch/$name" ]; then
     echo "the store's run directory $name kept (newer than the carried one)" | tee -a "$log"
   else
-    mkdir -p "$store/scratch" && cp -r "$run" "$store/scratch/.$name.part" \
-      && mv "$store/scratch/.$name.part" "$store/scratch/$name" || exit 1
+    part="$store/scratch/.$name.part"
+    rm -rf "$part" && mkdir -p "$part" && cp -r "$run". "$part" \
+      && mv "$part" "$store/scratch/$name" || exit 1
     echo "resuming from the carried run directory: $name" | tee -a "$log"
   fi
 done
@@ -58,7 +67,9 @@ python3 -c "import jax, flax, mujoco; print('jax', jax.__version__, 'flax', flax
 python3 -m specrl_jax.cli reproduce --store "$store" "$@" 2>&1 | tee -a "$log"
 rc=${PIPESTATUS[0]}
 cd "$store" || exit 1
-keep_k=$((${KEEP_MB:-15} * 1024))
+keep_mb=${KEEP_MB:-15}
+[ "$keep_mb" -le 15 ] || keep_mb=15  # two archives of up to 16 MiB would not come back
+keep_k=$((keep_mb * 1024))
 find . -path ./scratch -prune -o -type f -newer .copied -size -"$keep_k"k -print \
   | tar czf "$out/cells.tar.gz" -T -
 find . -path ./scratch -prune -o -type f -newer .copied -size +$((keep_k - 1))k -print \
@@ -77,17 +88,22 @@ EOF
 runs=()
 total=0
 for name in $resumable; do
-  size=$(du -sk "scratch/$name" | cut -f1)
+  size=$(du -sk --apparent-size "scratch/$name" | cut -f1)
   if [ $((total + size)) -le "$keep_k" ]; then
     runs+=("$name")
     total=$((total + size))
   else
-    echo "left behind (too large to come back, ${size} kB): ./scratch/$name" | tee -a "$log"
+    echo "left behind (${size} kB, over the ${keep_k} kB that come back with ${total} kB" \
+      "packed): ./scratch/$name" | tee -a "$log"
   fi
 done
 if [ ${#runs[@]} -gt 0 ]; then
-  (cd scratch && tar czf "$out/scratch.tar.gz" "${runs[@]}")
-  printf 'resumable run brought back (scratch.tar.gz): %s\n' "${runs[@]}" | tee -a "$log"
+  if (cd scratch && tar czf "$out/scratch.tar.gz" "${runs[@]}"); then
+    printf 'resumable run brought back (scratch.tar.gz): %s\n' "${runs[@]}" | tee -a "$log"
+  else
+    rm -f "$out/scratch.tar.gz"
+    echo "could not pack the resumable run directories: none comes back" | tee -a "$log"
+  fi
 fi
 (cd "$root/specrl_jax/benchmark/results" && find . -type f) | while read -r f; do
   [ -e "$f" ] || echo "deleted by the run: $f"

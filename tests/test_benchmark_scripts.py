@@ -169,7 +169,7 @@ def test_device_reproduce_starts_from_the_package_store_and_brings_back_what_it_
     (store / "scratch" / "PointLTL0-v0__genz").mkdir()
     rc, log, files = call(*listing)
     assert packed("scratch.tar.gz") == ["LetterLTL0-v0__deepltl/run_seeds3-5/checkpoint.msgpack"]
-    assert "too large to come back" in log and "./scratch/LetterLTL0-v0__genz" in log
+    assert "over the 1024 kB that come back" in log and "./scratch/LetterLTL0-v0__genz" in log
     assert "PointLTL0-v0__genz" not in log
     (run / "big.msgpack").unlink()
     rc, log, files = call(*listing)
@@ -177,18 +177,31 @@ def test_device_reproduce_starts_from_the_package_store_and_brings_back_what_it_
                                         "LetterLTL0-v0__genz/run/checkpoint.msgpack"]
     assert "resumable run brought back (scratch.tar.gz): LetterLTL0-v0__genz" in log
     # a new machine's store starts from the carried runs; a store's own run is kept, FRESH too
+    # (STORE with a trailing slash included)
     with tarfile.open(out / "scratch.tar.gz") as tar:
         tar.extractall(carried, filter="data")
     (run / "checkpoint.msgpack").write_bytes(b"\2")
-    env["FRESH"] = "1"
+    env["FRESH"], env["STORE"] = "1", f"{store}/"
     rc, log, files = call(*listing)
     del env["FRESH"]
     assert "resuming from the carried run" not in log and "LetterLTL0-v0__genz kept" in log
     assert (run / "checkpoint.msgpack").read_bytes() == b"\2"
+    # a call killed with the runs set aside beside the store: the next puts them back
     shutil.rmtree(store)
+    kept = tmp_path / ".store.kept_scratch" / "Demo__y"
+    kept.mkdir(parents=True)
+    rc, log, files = call(*listing)
+    assert rc == 0 and (store / "scratch" / "Demo__y").is_dir() and not kept.parent.exists()
+    assert "resuming from the carried run directory: LetterLTL0-v0__genz" in log
+    # a copy of a carried run killed half-way: the next copy starts it again
+    shutil.rmtree(run.parent)
+    stale = store / "scratch" / ".LetterLTL0-v0__genz.part"
+    stale.mkdir()
+    (stale / "stale.json").write_text("{}")
     rc, log, files = call(*listing)
     assert "resuming from the carried run directory: LetterLTL0-v0__genz" in log
     assert (run / "checkpoint.msgpack").read_bytes() == b"\1"
+    assert sorted(p.name for p in run.parent.iterdir()) == ["run"] and not stale.exists()
     rc, log, files = call("--seed-range", "5-1")
     assert rc != 0 and files == []
 

@@ -65,6 +65,20 @@ def _unpack_bits(template: Any, stored: Any) -> Any:
     return stored  # another shape: `load_checkpoint` names it
 
 
+def _flat_moments(template: Any, stored: Any) -> Any:
+    """`stored` (a checkpoint's optimizer state dict) with every per-parameter tree that
+    `template` holds as one flat vector (`optax.flatten`'s Adam moments, `[..., P]`) raveled
+    into it, in the order `optax.flatten` ravels the parameters (sorted keys, as jax's tree
+    order): checkpoints written with the per-parameter optimizer state still resume."""
+    if isinstance(stored, dict) and isinstance(template, dict):
+        return {k: _flat_moments(template[k], v) if k in template else v
+                for k, v in stored.items()}
+    if isinstance(stored, dict) and stored and not isinstance(template, dict):
+        lead = np.shape(template)[:-1]
+        return np.concatenate([np.reshape(x, (*lead, -1)) for x in jax.tree.leaves(stored)], -1)
+    return stored
+
+
 def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerState:
     """Read a checkpoint written by `save_checkpoint` into the structure of `template`.
 
@@ -76,6 +90,9 @@ def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerSta
     try:
         stored = add_derived_spec_fields(load_params(path, what="training checkpoint"))
         stored = _unpack_bits(serialization.to_state_dict(zeros), stored)
+        if isinstance(stored, dict) and "opt_state" in stored:
+            stored["opt_state"] = _flat_moments(
+                serialization.to_state_dict(zeros.opt_state), stored["opt_state"])
         restored = load_params_into(zeros, stored)
         for (where, want), got in zip(jax.tree_util.tree_leaves_with_path(zeros),
                                       jax.tree.leaves(restored), strict=True):
@@ -83,8 +100,8 @@ def load_checkpoint(path: str | os.PathLike, template: RunnerState) -> RunnerSta
                 raise ValueError(f"{jax.tree_util.keystr(where)} is stored as {np.shape(got)}, "
                                  f"this run's is {want.shape}")
     except ValueError as err:
-        raise ValueError(f"checkpoint {path} cannot be read ({err}); delete it, or start over "
-                         "with --restart (`reproduce`: --rerun), or use another --out") from err
+        raise ValueError(f"checkpoint {path} cannot be read ({err}); delete it to train this "
+                         "run from its start (or pass --restart), or use another --out") from err
     restored = jax.tree.map(lambda t, x: hosts.put_like(np.asarray(x), t), raw, restored)
     return restored.replace(key=jax.random.wrap_key_data(restored.key))
 

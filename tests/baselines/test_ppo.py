@@ -409,6 +409,34 @@ def test_checkpoints_store_booleans_as_bits_and_read_unpacked_ones_too(tmp_path)
             np.testing.assert_array_equal(a, b)
 
 
+def test_checkpoints_with_the_per_parameter_optimizer_state_still_resume(tmp_path):
+    """Adam's moments stored per parameter (before `optax.flatten`) load as the flat vectors
+    the optimizer keeps now, per seed, in the order it ravels the parameters."""
+    import optax
+    from jax.flatten_util import ravel_pytree
+
+    _, _, method, config = experiment.build("genz", "LetterLTL0-v0",
+                                            {"num_envs": 4, "num_steps": 8}, None, jax.random.key(0))
+    trainer = make_train(config, method)
+    runner = jax.jit(trainer.init)(jax.random.key(3))
+    params = jax.tree.map(lambda x: jnp.stack([x, x + 1.0]), runner.params)  # two seeds
+    per_leaf = optax.chain(optax.clip_by_global_norm(1.0), optax.adam(1e-3))
+    old_state = jax.vmap(per_leaf.init)(params)
+    leaves, tree = jax.tree.flatten(old_state[1][0].mu)
+    moments = jax.tree.unflatten(tree, [jax.random.normal(jax.random.key(i), x.shape)
+                                        for i, x in enumerate(leaves)])
+    old_state = (old_state[0], (old_state[1][0]._replace(mu=moments, count=jnp.array([7, 7])),
+                                *old_state[1][1:]))
+    runs.save_checkpoint(tmp_path / "old.msgpack", runner.replace(params=params,
+                                                                  opt_state=old_state))
+    template = runner.replace(params=params, opt_state=jax.vmap(trainer.optimizer.init)(params))
+    loaded = runs.load_checkpoint(tmp_path / "old.msgpack", template)
+    adam = loaded.opt_state[1][0]
+    np.testing.assert_array_equal(adam.mu, jax.vmap(lambda m: ravel_pytree(m)[0])(moments))
+    np.testing.assert_array_equal(adam.nu, np.zeros_like(adam.nu))
+    np.testing.assert_array_equal(adam.count, [7, 7])
+
+
 def test_checkpoints_without_step_planes_still_load():
     """A state dict written before specs carried `step_planes` (here: two stacked specs, as
     in a runner's per-env task states) gets them derived from `step_table` on load."""
