@@ -284,8 +284,10 @@ def merge_training(training: dict[str, Any], summary: dict[str, Any], num_seeds:
     done = trained_seeds({"parts": parts})
     timed = [p for p in parts.values() if p.get("env_steps_per_s")]
     steps = [p.get("env_steps_per_seed", 0) * len(p["seeds"]) for p in timed]
-    # the settings of a complete part, if any (a stopped part's env_steps_per_seed is progress)
-    settled = next((p for p in parts.values() if p.get("complete")), summary)
+    # the settings of a complete part, this one's first (it has every field the code writes
+    # now), else the held ones' (a stopped part's env_steps_per_seed is progress)
+    settled = summary if summary.get("complete", True) else next(
+        (p for p in parts.values() if p.get("complete")), summary)
     merged = {k: settled[k] for k in (*PART_SETTINGS, "physics") if k in settled}
     merged.update(parts=parts, seeds=done, num_seeds=len(done),
                   complete=done == list(range(1, num_seeds + 1)),

@@ -467,8 +467,10 @@ def test_parts_trained_with_other_settings_are_not_merged():
             "env_steps_per_seed": 100, "env_steps_per_s": 5.0}
     with pytest.raises(ValueError, match="other ppo than the held seeds 1-2"):
         store_lib.merge_training(held, part, 3)
-    merged = store_lib.merge_training(held, {**part, "ppo": {"num_envs": 512}}, 3)
+    newer = {"num_envs": 512, "lr": 3e-4, "update_epochs": 10}  # a field added since
+    merged = store_lib.merge_training(held, {**part, "ppo": newer}, 3)
     assert merged["complete"] and merged["seeds"] == [1, 2, 3] and merged["num_seeds"] == 3
+    assert merged["ppo"] == newer  # the settings as the code writes them now
     assert merged["env_steps_per_s"] == pytest.approx(300 / (200 / 10.0 + 100 / 5.0))
 
 
