@@ -24,8 +24,8 @@ Public API:
 on every step of our episode and stop with it (the original's own violation does not end our
 episode; `is_violated` reports it). Entries with `present` False count 0.
 
-Epsilon rules (a static argument; docs/fidelity.md, row "evaluation: accepting visits on the
-original's automata"):
+Epsilon rules (a static argument; docs/fidelity.md, Evaluation, row "Owl's
+counts"):
 
 * "policy" (default): the original's DeepLTL takes an epsilon edge only on the policy's
   epsilon action (the env is not stepped, the LDBA follows the state's unique edge). Our

@@ -187,7 +187,7 @@ class CurriculumState:
     stage: int32[], current stage index.
     task_success: float32[K], last measured success per enumerated task of this stage
         (K = the largest enumeration of the curriculum; unused slots stay 0).
-    finished: bool[], the last stage's threshold was met (GenZ stops training there).
+    finished: bool[], the last stage's threshold was met (training does not stop on it).
     """
 
     stage: jax.Array

@@ -2,8 +2,9 @@
 
 The policy sees no specification encoding: the subgoal is written into the observation by
 reducing its proposition axis (`reduce_observation`): on a grid the proposition channels become
-one image (reach cells 1.0, avoid cells 0.5, agent 0.2); on LiDAR (or range-bearing) features the
-reach and avoid sets become one max-pooled reading each, appended to the robot sensors. It trains
+one image (reach cells 1.0, avoid cells 0.5, agent 0.2); on LiDAR features the reach and avoid
+sets become one max-pooled reading each, on range-bearing features the nearest proposition's
+entry each, appended to the robot sensors. It trains
 with RCO (`losses.rco_loss`): a reward critic, a reachability-cost critic and a state-dependent
 Lagrange multiplier, on the uniform distribution of one-step subgoals (reach one proposition,
 avoid 0-3 others) drawn by the task loop's continual sequence source: +1 on reach, then a fresh

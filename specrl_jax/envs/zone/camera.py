@@ -19,7 +19,8 @@ geom groups). The scene is a few primitives, so each pixel's ray is intersected 
 The per-pixel arithmetic (`Camera._shade`) runs either as plain jnp over the whole frame, or on a
 GPU inside one Pallas (Triton) kernel per world and block of pixels, reading the world's scene
 from a flat table (`_TableView`); XLA alone splits the jnp version into several kernels with
-float32 temporaries per pixel (2.5x slower, 9x the memory on an H100; docs/results.md).
+float32 temporaries per pixel (2.5x slower, 9x the memory on an H100, measured when the kernel
+was written).
 
 Shading departures (no specular highlights, no floor reflections, no anti-aliasing) are listed in
 `docs/fidelity.md`; `docs/vision.md` compares frames with the original's.

@@ -24,8 +24,8 @@ DEFAULT_SOLVERS = {
     # Line search capped at 4: MuJoCo C trajectories move by < 1e-6 m (tested), MJX-JAX runs
     # 31% (Car) and 61% (Ant) faster on an H100 (docs/fidelity.md). At most 5 (Car) / 4
     # (Ant) contacts reach the solver: no more ever penetrate at once in MuJoCo C rollouts of a
-    # live robot (tested), so only constraint rows that stay empty are dropped (fidelity row
-    # "zone: contacts passed to the solver").
+    # live robot (tested), so only constraint rows that stay empty are dropped (fidelity.md,
+    # Zone physics, "Solver rows (MJX-JAX)").
     "Car": Solver(iterations=10, ls_iterations=4, condim=6, max_contacts=5),
     "Ant": Solver(iterations=8, ls_iterations=4, condim=6, max_contacts=4),
 }
