@@ -31,6 +31,7 @@ import shutil
 import subprocess
 import sys
 import time
+import traceback
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from pathlib import Path
@@ -571,7 +572,8 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
     """Run the selected cells (`grid.select(patterns)`, or `cells`); returns `{name: state}`.
     `rerun` discards what the store holds of them first, so they run end to end. After
     `max_minutes` no cell or evaluation starts and training stops at its next checkpoint
-    (every 10 updates), so a run fits a time slot and the same command resumes it. In a job of
+    (every 10 updates), so a run fits a time slot and the same command resumes it. A cell that
+    fails is logged with its error and the next one runs (as side by side). In a job of
     several processes (`hosts.join`) the cells run in turn (`gpus` None or 1), each over every
     process's devices; process 0 writes and logs. `run_options` go to `run_cell`; with
     `part` (seed numbers) the states are those of the part's seeds, and a cell whose part cannot
@@ -624,8 +626,14 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
                     "rerun the same command to resume")
                 break
             start = time.perf_counter()
-            run_cell(c, store, log=lambda line, c=c: log(f"[{c.name}] {line}"),
-                     deadline=deadline, **run_options)
+            try:
+                run_cell(c, store, log=lambda line, c=c: log(f"[{c.name}] {line}"),
+                         deadline=deadline, **run_options)
+            except Exception as err:  # the other cells go on, as side by side
+                if hosts.joined():
+                    raise  # every process must leave the cell together
+                log(f"[{c.name}] failed, {store.state(c)}: {type(err).__name__}: {err}\n"
+                    + "".join(traceback.format_exception(err)).rstrip())
             spent += time.perf_counter() - start
             estimated += estimates[c.name]
             rest = sum(estimates[x.name] for x in todo[i + 1:])

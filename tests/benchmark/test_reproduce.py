@@ -256,6 +256,27 @@ def test_a_time_limit_stops_training_and_evaluation_and_the_same_call_resumes(tm
     assert rest.trained == 0 and rest.evaluated == list(CELL.suites)  # its parameters reused
 
 
+def test_a_failing_cell_is_logged_and_the_next_one_runs(tmp_path):
+    store = Store(tmp_path)
+    other = dataclasses.replace(grid.cell("LetterLTL0-v0/rad"), seeds=2, total_steps=2048,
+                                episodes=3)
+    fakes = Fakes()
+
+    def train(cell, *args, **kwargs):
+        if cell.name == CELL.name:
+            raise ValueError("checkpoint x cannot be read")
+        return fakes.train(cell, *args, **kwargs)
+
+    lines = []
+    states = reproduce.reproduce(cells=[CELL, other], store=store, gpus=1, log=lines.append,
+                                 train=train, evaluate=fakes.evaluate, load=fakes.load,
+                                 trajectories=False)
+    assert states == {CELL.name: "missing", other.name: "done"}
+    failed = next(line for line in lines if "failed" in line)
+    assert failed.startswith(f"[{CELL.name}] failed, missing: ValueError: checkpoint x cannot")
+    assert "Traceback" in failed
+
+
 def test_a_cell_with_fewer_seeds_is_retrained_and_all_suites_reevaluated(tmp_path):
     store = Store(tmp_path)
     one_seed = dataclasses.replace(CELL, seeds=1)
