@@ -35,7 +35,7 @@ SCRIPTS = {
     "lab/vision_fidelity.py": ["--robots", "Point", "--supersample", "1"],
     "lab/arm_vs_pybullet.py": ["--episodes", "2", "--steps", "3"],
     "lab/warp_profile.py": ["--robots", "Point", "--worlds", "4", "--substeps", "2"],
-    "lab/persistence_avoids.py": ["--episodes", "1", "--horizon", "5"],
+    "lab/avoid_sets.py": ["--episodes", "1", "--horizon", "5", "--keep", "0", "--subgoals"],
     "lab/arm_solver_load.py": ["--policy", "random", "--suites", "arm_grippers/finite/ind",
                                "--episodes", "1", "--steps", "2"],
     "lab/image_conv.py": ["--seeds", "2", "--cases", "64:2", "--repeats", "1", "--in-turn"],
