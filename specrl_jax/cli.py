@@ -568,9 +568,10 @@ def pretrain_command(args: argparse.Namespace) -> int:
         help="discard the selected cells' stored results and run them end to end again"),
     arg("--max-minutes", type=positive_float, default=None,
         help="stop cleanly after this many minutes: training checkpoints at its next chunk (10 "
-             "updates), no further cell or evaluation starts; the same command resumes. A "
-             "training that completes in time still runs its method's phase after training "
-             "(GCRL-LTL's value functions, 1-2 minutes on a GPU): leave room for it"),
+             "updates), no further cell starts, nor an evaluation estimated to end past them; "
+             "the same command resumes. A training that completes in time still runs its "
+             "method's phase after training (GCRL-LTL's value functions, 1-2 minutes on a "
+             "GPU): leave room for it"),
     *PROCESS_ARGS,
 )
 def reproduce_command(args: argparse.Namespace) -> int:

@@ -163,8 +163,8 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     evaluation of every suite once the training step has compiled (`train` is then also given
     `on_compiled=`), its future holding `evaluate(params)` (default with the default training
     and evaluation: `default_prepare`). Past `deadline` (a `time.monotonic()` value) training
-    stops at its next checkpoint and the evaluation does not start; the cell stays partial, to
-    resume. In a job of several processes every process calls it alike and process 0 writes."""
+    stops at its next checkpoint, and an evaluation estimated to end past it
+    (`estimate.evaluation_seconds`) does not start; the cell stays partial, to resume. In a job of several processes every process calls it alike and process 0 writes."""
     store = store or Store()
     problem = part_problem(cell, store, part)
     if problem:
@@ -260,9 +260,13 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     # one call for every missing suite: one compiled evaluator serves the finite and infinite
     # horizons (`eval.suites.evaluate_suites`), compiled once per cell instead of per horizon
     if missing:
-        if _out_of_time(deadline):
-            log(f"{cell.name}: time limit reached before evaluating {', '.join(missing)}; rerun "
-                "to resume")
+        # an evaluation that would outrun the time left is not started (a time slot's end
+        # would kill it and lose it)
+        needs = estimate.evaluation_seconds(cell) * len(missing) / len(cell.suites)
+        if _out_of_time(deadline if deadline is None else deadline - needs):
+            log(f"{cell.name}: time limit reached before evaluating {', '.join(missing)} (about "
+                f"{_duration(needs)}, {_duration(_seconds_left(deadline))} left); rerun to "
+                "resume")
             hosts.barrier(f"{cell.name} written")
             return record
         log(f"{cell.name}: evaluating {', '.join(missing)} ({len(seeds)} seeds x "
@@ -724,8 +728,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="discard the selected cells' stored results and run them again")
     parser.add_argument("--max-minutes", type=float, default=None,
                         help="stop cleanly after this many minutes: training checkpoints at its "
-                             "next chunk, no further cell or evaluation starts; the same "
-                             "command resumes (default: no limit)")
+                             "next chunk, no further cell starts, nor an evaluation "
+                             "estimated to end past them; the same command resumes "
+                             "(default: no limit)")
 
 
 def run_from_args(args: argparse.Namespace) -> int:

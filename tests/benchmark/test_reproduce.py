@@ -256,6 +256,23 @@ def test_a_time_limit_stops_training_and_evaluation_and_the_same_call_resumes(tm
     assert rest.trained == 0 and rest.evaluated == list(CELL.suites)  # its parameters reused
 
 
+def test_an_evaluation_that_would_outrun_the_time_left_waits_for_the_next_call(tmp_path,
+                                                                               monkeypatch):
+    clock = Clock()
+    monkeypatch.setattr(reproduce, "time", clock)
+    store = Store(tmp_path)
+    needs = estimate.evaluation_seconds(CELL)
+    fakes, lines = Fakes(), []
+    reproduce.run_cell(CELL, store, log=lines.append, train=fakes.train, evaluate=fakes.evaluate,
+                       load=fakes.load, trajectories=False, deadline=clock.now + needs / 2)
+    assert fakes.trained == 1 and fakes.evaluated == [] and store.state(CELL) == "partial"
+    assert any("time limit reached before evaluating" in line for line in lines)
+    reproduce.run_cell(CELL, store, log=lines.append, train=fakes.train, evaluate=fakes.evaluate,
+                       load=fakes.load, trajectories=False, deadline=clock.now + needs * 1.5)
+    assert fakes.trained == 1 and fakes.evaluated == list(CELL.suites)
+    assert store.state(CELL) == "done"
+
+
 def test_a_failing_cell_is_logged_and_the_next_one_runs(tmp_path):
     store = Store(tmp_path)
     other = dataclasses.replace(grid.cell("LetterLTL0-v0/rad"), seeds=2, total_steps=2048,
