@@ -18,9 +18,11 @@ from typing import Any
 
 import yaml
 
+from specrl_jax import families
 from specrl_jax.benchmark import grid, paper
 from specrl_jax.benchmark.grid import Cell
 from specrl_jax.benchmark.store import (
+    LEGACY_PPO,
     Store,
     missing_work,
     scored_now,
@@ -179,7 +181,7 @@ def world_page(env_id: str, rows: Sequence[tuple[Cell, dict[str, Any]]], store: 
     notes = [f"- {method_label(c)}: {r['params_note']}" for c, r in rows if r.get("params_note")]
     if notes:
         lines += [*notes, ""]
-    settings = [f"- {method_label(c)}: {s}" for c, r in rows if (s := cell_settings(r))]
+    settings = [f"- {method_label(c)}: {s}" for c, r in rows if (s := cell_settings(c, r))]
     if settings:
         lines += ["Settings beyond the method's defaults, as each cell ran them:", "", *settings, ""]
     if any("/finite/" in s for s in suites):
@@ -194,12 +196,23 @@ def world_page(env_id: str, rows: Sequence[tuple[Cell, dict[str, Any]]], store: 
     return lines, written
 
 
-def cell_settings(record: dict[str, Any]) -> str:
-    """The world, method and PPO options a stored cell ran with (`key=value, ...`; '' if none)."""
+def cell_settings(cell: Cell, record: dict[str, Any]) -> str:
+    """The world, method and PPO options a stored cell ran with (`key=value, ...`; '' if none),
+    with the PPO settings it predates where they change its training (`legacy_settings`)."""
     config = record.get("config", {})
     options = {**config.get("env_options", {}), **config.get("method_options", {}),
-               **config.get("ppo", {})}
+               **config.get("ppo", {}), **legacy_settings(cell, record)}
     return ", ".join(f"`{k}={v}`" for k, v in options.items())
+
+
+def legacy_settings(cell: Cell, record: dict[str, Any]) -> dict[str, Any]:
+    """The PPO settings (`store.LEGACY_PPO`) a cell trained before they existed ran with, where
+    they differ from today's defaults: the entropy bonus summed over a Gaussian's action
+    dimensions (LetterWorld's moves and GCRL-LTL's primitive choice are categorical)."""
+    ppo = record.get("training", {}).get("ppo")
+    if not ppo or cell.method == "gcrl" or families.family_of_id(cell.env_id).name == "letter":
+        return {}
+    return {k: v for k, v in LEGACY_PPO.items() if k not in ppo}
 
 
 def grid_table(store: Store) -> list[str]:

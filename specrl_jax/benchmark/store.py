@@ -250,6 +250,8 @@ def part_conflict(training: dict[str, Any], part: Sequence[int]) -> str | None:
 
 #: a part's settings that every part of a cell shares (else its seeds learned another way)
 PART_SETTINGS = ("method", "env", "ppo", "env_steps_per_seed")
+#: PPO settings added since some records were written, as those records were trained
+LEGACY_PPO = {"entropy_per_action_dim": False}
 
 
 def merge_training(training: dict[str, Any], summary: dict[str, Any], num_seeds: int
@@ -276,7 +278,8 @@ def merge_training(training: dict[str, Any], summary: dict[str, Any], num_seeds:
                 if summary.get("complete", True) or k != "env_steps_per_seed"]
     for held_label, held in parts.items():
         differ = [k for k in settings if held_label != label and held.get("complete")
-                  and k in held and k in summary and _differs(held[k], summary[k])]
+                  and k in held and k in summary
+                  and _differs(_as_trained(k, held[k]), _as_trained(k, summary[k]))]
         if differ:
             raise ValueError(f"seeds {label} were trained with other {', '.join(differ)} than "
                              f"the held seeds {held_label}: train them alike (same device kind)")
@@ -294,6 +297,11 @@ def merge_training(training: dict[str, Any], summary: dict[str, Any], num_seeds:
                   env_steps_per_s=sum(steps) / sum(
                       s / p["env_steps_per_s"] for s, p in zip(steps, timed)) if timed else 0.0)
     return merged
+
+
+def _as_trained(setting: str, value: Any) -> Any:
+    """A part's `setting` with the PPO settings its record predates filled in as it ran."""
+    return {**LEGACY_PPO, **value} if setting == "ppo" and isinstance(value, dict) else value
 
 
 def _differs(a: Any, b: Any) -> bool:

@@ -139,6 +139,34 @@ def test_gaussian_log_prob_and_entropy_match_scipy():
     np.testing.assert_allclose(dist.entropy(), norm.entropy(mean, std).sum(-1), rtol=1e-5)
 
 
+def test_the_entropy_bonus_is_per_action_dimension_as_torch_ac_averages_it():
+    """torch-ac's baselines reward `dist.entropy().mean()`: a Normal's per-dimension entropies
+    (DeepLTL's epsilon mixture scales them by 1 - p where the jump is allowed) averaged over the
+    batch and the action dimensions; SB3 sums the dimensions (`entropy_per_action_dim=False`)."""
+    from scipy.stats import norm
+
+    from specrl_jax.baselines.ppo.networks import EpsilonGaussian
+
+    rng = np.random.default_rng(0)
+    mean, std = rng.normal(size=(6, 3)), rng.uniform(0.2, 1.3, (6, 3))
+    p_eps, allowed = rng.uniform(0.1, 0.9, 6), np.array([True, False] * 3)
+    per_dim = norm.entropy(mean, std)  # [6, 3], torch's Normal(mean, std).entropy()
+    scaled = per_dim * np.where(allowed, 1 - p_eps, 1.0)[:, None]
+    batch, out, _ = _fixed_batch()
+    zero = LossConfig(ent_coef=1.0, vf_coef=0.0)
+    for pi, torch_ac in ((DiagGaussian(jnp.asarray(mean), jnp.asarray(std)), per_dim.mean()),
+                         (EpsilonGaussian(DiagGaussian(jnp.asarray(mean), jnp.asarray(std)),
+                                          jnp.asarray(p_eps), jnp.asarray(allowed)),
+                          scaled.mean())):
+        given = out._replace(pi=pi)
+        moves = batch._replace(action=jnp.zeros((6, 3 + isinstance(pi, EpsilonGaussian))))
+        for loss_fn in (ppo_loss, rco_loss):
+            _, metrics = loss_fn(given, moves, zero)
+            np.testing.assert_allclose(metrics["entropy"], torch_ac, rtol=1e-5)
+        _, joint = ppo_loss(given, moves, zero._replace(entropy_per_action_dim=False))
+        np.testing.assert_allclose(joint["entropy"], 3 * torch_ac, rtol=1e-5)
+
+
 def test_kl_early_stop_limits_epochs():
     loose = PPOConfig(**{**TINY.__dict__, "update_epochs": 6, "loss": "rco", "target_kl": 1e9})
     tight = PPOConfig(**{**TINY.__dict__, "update_epochs": 6, "loss": "rco", "target_kl": -1.0})

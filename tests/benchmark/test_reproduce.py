@@ -505,10 +505,15 @@ def test_parts_trained_with_other_settings_are_not_merged():
             "env_steps_per_seed": 100, "env_steps_per_s": 5.0}
     with pytest.raises(ValueError, match="other ppo than the held seeds 1-2"):
         store_lib.merge_training(held, part, 3)
-    newer = {"num_envs": 512, "lr": 3e-4, "update_epochs": 10}  # a field added since
+    newer = {"num_envs": 512, "lr": 3e-4, "update_epochs": 10,  # fields added since
+             "entropy_per_action_dim": False}  # (as the held part trained)
     merged = store_lib.merge_training(held, {**part, "ppo": newer}, 3)
     assert merged["complete"] and merged["seeds"] == [1, 2, 3] and merged["num_seeds"] == 3
     assert merged["ppo"] == newer  # the settings as the code writes them now
+    # a setting the held part predates counts as it trained: the entropy summed over dimensions
+    with pytest.raises(ValueError, match="other ppo than the held seeds 1-2"):
+        store_lib.merge_training(held, {**part, "ppo": {**newer, "entropy_per_action_dim": True}},
+                                 3)
     assert merged["env_steps_per_s"] == pytest.approx(300 / (200 / 10.0 + 100 / 5.0))
 
 

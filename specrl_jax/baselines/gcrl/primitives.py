@@ -130,7 +130,8 @@ def ppo_config(total_timesteps: int = MAX_STEPS, **overrides: Any) -> PPOConfig:
     64)."""
     settings = {"num_envs": 64, "num_steps": 128, "num_minibatches": 16, "update_epochs": 10,
                 "lr": 3e-4, "adam_eps": 1e-5, "gamma": 0.99, "gae_lambda": 0.95, "clip_eps": 0.2,
-                "ent_coef": 0.0, "vf_coef": 0.5, "clip_value": False, "normalize_advantages": True,
+                "ent_coef": 0.0, "entropy_per_action_dim": False,  # SB3's (no bonus here)
+                "vf_coef": 0.5, "clip_value": False, "normalize_advantages": True,
                 "total_timesteps": int(total_timesteps)}
     return PPOConfig(**{**settings, **overrides})
 
@@ -149,12 +150,11 @@ def train_primitives(world: Any, params: Any, key: jax.Array, config: PPOConfig,
     method = PrimitiveMethod(direction_env(world, params),
                              PrimitiveNetwork(int(world.action_space.shape[0])))
     trainer = make_train(config, method)
-    runners = init_seeds(trainer, key, len(DIRECTIONS))
-    runners = runners.replace(task_params=jnp.arange(len(DIRECTIONS), dtype=jnp.int32))
+    start = init_seeds(trainer, key, len(DIRECTIONS))
+    start = start.replace(task_params=jnp.arange(len(DIRECTIONS), dtype=jnp.int32))
     # the run driver, the four directions on its seed axis, all updates in one chunk
-    for runners, metrics, _, _ in train_chunks(trainer, runners, len(DIRECTIONS),
-                                                config.num_updates, config.num_updates):
-        pass
+    (runners, metrics, _, _), = train_chunks(trainer, start, len(DIRECTIONS),
+                                             config.num_updates, config.num_updates)
     speed = np.asarray(metrics["speed_along"]) / config.batch_size  # [4, updates], m/s
     tail = max(1, speed.shape[1] // 10)
     log(f"direction primitives: {config.num_updates} updates x {config.batch_size} steps each; "

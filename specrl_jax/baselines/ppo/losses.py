@@ -40,6 +40,16 @@ class LossConfig(NamedTuple):
     target_cost: float = -0.05
     multiplier_min: float = 0.01
     multiplier_max: float = 5.0
+    entropy_per_action_dim: bool = True
+
+
+def _entropy(out: PolicyOutput, cfg: LossConfig) -> jax.Array:
+    """The mean entropy the bonus rewards: per action dimension (a Gaussian's summed entropy
+    over its `D` dimensions, divided by `D`), as torch-ac's `dist.entropy().mean()` averages a
+    `Normal`'s per-dimension entropies, or the joint entropy (SB3) when not
+    `entropy_per_action_dim`."""
+    entropy = jnp.mean(out.pi.entropy())
+    return entropy / out.pi.action_dims if cfg.entropy_per_action_dim else entropy
 
 
 def compute_gae(
@@ -109,7 +119,7 @@ def ppo_loss(out: PolicyOutput, batch: Batch, cfg: LossConfig) -> tuple[jax.Arra
     adv = _advantage(batch, cfg)
     surrogate = jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - cfg.clip_eps, 1 + cfg.clip_eps) * adv)
     policy_loss = -jnp.mean(surrogate)
-    entropy = jnp.mean(out.pi.entropy())
+    entropy = _entropy(out, cfg)
     value_loss = _value_loss(out.value, batch.value, batch.target, cfg)
     loss = policy_loss - cfg.ent_coef * entropy + cfg.vf_coef * value_loss
     approx_kl = jnp.mean(batch.log_prob - log_prob)
@@ -131,7 +141,7 @@ def rco_loss(out: PolicyOutput, batch: Batch, cfg: LossConfig) -> tuple[jax.Arra
     constraint = ratio * batch.cost_advantage + (1 - cfg.gamma) * batch.cost_target - cfg.target_cost
     policy_loss = jnp.mean(-surrogate + jax.lax.stop_gradient(lam) * constraint)
     multiplier_loss = -jnp.mean(lam * jax.lax.stop_gradient(constraint))
-    entropy = jnp.mean(out.pi.entropy())
+    entropy = _entropy(out, cfg)
     value_loss = _value_loss(out.value, batch.value, batch.target, cfg)
     cost_value_loss = _value_loss(out.cost_value, batch.cost_value, batch.cost_target, cfg)
     loss = (

@@ -234,6 +234,7 @@ class Categorical:
     """Categorical over the last axis of `logits` (masked entries hold a large negative value)."""
 
     logits: jax.Array
+    action_dims = 1  # one choice per sample
 
     def log_probs(self) -> jax.Array:
         return jax.nn.log_softmax(self.logits, axis=-1)
@@ -258,6 +259,10 @@ class DiagGaussian:
 
     mean: jax.Array
     std: jax.Array
+
+    @property
+    def action_dims(self) -> int:
+        return self.mean.shape[-1]
 
     def sample(self, key: jax.Array) -> jax.Array:
         return self.mean + self.std * jax.random.normal(key, self.mean.shape)
@@ -310,6 +315,10 @@ class EpsilonGaussian:
     gaussian: DiagGaussian
     p_epsilon: jax.Array  # float32[...]
     allowed: jax.Array  # bool[...]
+
+    @property
+    def action_dims(self) -> int:
+        return self.gaussian.action_dims
 
     def _p(self) -> jax.Array:
         return jnp.where(self.allowed, self.p_epsilon, 0.0)

@@ -51,6 +51,9 @@ class PPOConfig:
     target_cost: float = -0.05
     multiplier_min: float = 0.01
     multiplier_max: float = 5.0
+    # the entropy bonus per action dimension, as torch-ac's baselines average a Gaussian's
+    # entropy (False: the joint entropy, SB3's)
+    entropy_per_action_dim: bool = True
     # seeds side by side: learn one seed after the other, each stopping at its own `target_kl`
     # (under `vmap` every seed runs the epochs of the last to stop); the same updates
     learn_seeds_in_turn: bool = False
