@@ -205,6 +205,19 @@ def cell_settings(cell: Cell, record: dict[str, Any]) -> str:
     return ", ".join(f"`{k}={v}`" for k, v in options.items())
 
 
+def legacy_note(by_env: dict[str, list[tuple[Cell, dict[str, Any]]]]) -> list[str]:
+    """A paragraph naming how many stored cells ran with PPO settings since replaced."""
+    legacy = [c.name for rows in by_env.values() for c, r in rows
+              if "entropy_per_action_dim" in legacy_settings(c, r)]
+    if not legacy:
+        return []
+    count = "1 cell was" if len(legacy) == 1 else f"{len(legacy)} cells were"
+    note = (f"{count} trained with the entropy bonus summed over the action's "
+            "dimensions, D times the original baselines' (their pages mark them "
+            "`entropy_per_action_dim=False`; fidelity.md, Entropy bonus).")
+    return [note, ""]
+
+
 def legacy_settings(cell: Cell, record: dict[str, Any]) -> dict[str, Any]:
     """The PPO settings (`store.LEGACY_PPO`) a cell trained before they existed ran with, where
     they differ from today's defaults: the entropy bonus summed over a Gaussian's action
@@ -522,6 +535,7 @@ def render(store: Store | str | os.PathLike | None = None,
         "",
         *headline_table(by_env, store, page_dir.name),
         "",
+        *legacy_note(by_env),
     ]
     page_rel = os.path.relpath(fig_dir, page_dir).replace(os.sep, "/")
     page_dir.mkdir(parents=True, exist_ok=True)

@@ -159,3 +159,19 @@ def test_bars_show_each_seed_beside_the_mean(tmp_path):
     np.testing.assert_allclose(dots[0][:, 1], expected)
     np.testing.assert_allclose(dots[1][:, 1], seed_means(entry, "eta_v"))
     plt.close(fig)
+
+
+def test_cells_trained_with_the_joint_entropy_are_marked_where_it_changed_their_training():
+    """A stored record whose PPO settings predate `entropy_per_action_dim` trained with the
+    entropy summed over a Gaussian's dimensions: its page says so, but not for LetterWorld's
+    categorical moves, GCRL-LTL's primitive choice, or a record that has the setting."""
+    old = {"config": {}, "training": {"ppo": {"ent_coef": 0.003}}}
+    new = {"config": {}, "training": {"ppo": {"ent_coef": 0.003, "entropy_per_action_dim": True}}}
+    point, letter = grid.cell("PointLTL0-v0/genz"), grid.cell("LetterLTL0-v0/genz")
+    assert report.cell_settings(point, old) == "`entropy_per_action_dim=False`"
+    assert report.cell_settings(point, new) == ""
+    assert report.cell_settings(letter, old) == ""
+    assert report.cell_settings(grid.cell("PointLTL0-v0/gcrl"), old) == ""
+    note = report.legacy_note({"PointLTL0-v0": [(point, old)], "LetterLTL0-v0": [(letter, old)]})
+    assert note[0].startswith("1 cell was trained with the entropy bonus summed")
+    assert report.legacy_note({"PointLTL0-v0": [(point, new)]}) == []
