@@ -164,7 +164,8 @@ def run_cell(cell: Cell, store: Store | None = None, log: Log = print,
     `on_compiled=`), its future holding `evaluate(params)` (default with the default training
     and evaluation: `default_prepare`). Past `deadline` (a `time.monotonic()` value) training
     stops at its next checkpoint, and an evaluation estimated to end past it
-    (`estimate.evaluation_seconds`) does not start; the cell stays partial, to resume. In a job of several processes every process calls it alike and process 0 writes."""
+    (`estimate.evaluation_seconds`) does not start; the cell stays partial, to resume. In a job
+    of several processes every process calls it alike and process 0 writes."""
     store = store or Store()
     problem = part_problem(cell, store, part)
     if problem:

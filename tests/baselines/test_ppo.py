@@ -443,8 +443,8 @@ def test_checkpoints_with_the_per_parameter_optimizer_state_still_resume(tmp_pat
     import optax
     from jax.flatten_util import ravel_pytree
 
-    _, _, method, config = experiment.build("genz", "LetterLTL0-v0",
-                                            {"num_envs": 4, "num_steps": 8}, None, jax.random.key(0))
+    _, _, method, config = experiment.build("genz", "LetterLTL0-v0", {"num_envs": 4, "num_steps": 8},
+                                            None, jax.random.key(0))
     trainer = make_train(config, method)
     runner = jax.jit(trainer.init)(jax.random.key(3))
     params = jax.tree.map(lambda x: jnp.stack([x, x + 1.0]), runner.params)  # two seeds

@@ -239,7 +239,8 @@ def test_a_time_limit_stops_training_and_evaluation_and_the_same_call_resumes(tm
     assert out_of_time.limits == [0.0] and out_of_time.evaluated == []
     assert store.state(CELL) == "partial" and not store.read(CELL)["training"]["complete"]
     assert not store.params_path(CELL).exists()  # a stopped training's are not the method's yet
-    slow = Fakes(train_s=0.5, clock=clock)  # trains to the end but past the limit: no evaluation, no next cell
+    # trains to the end but past the limit: no evaluation, no next cell
+    slow = Fakes(train_s=0.5, clock=clock)
     lines = []
     states = reproduce.reproduce(cells=[CELL, other], store=store, gpus=1, log=lines.append,
                                  max_minutes=0.2 / 60, train=slow.train, evaluate=slow.evaluate,
