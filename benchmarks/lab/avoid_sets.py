@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import os
-import re
 import sys
 
 import numpy as np
@@ -63,10 +62,14 @@ def variants(formula: str, keep: list[int] | None = None) -> list[str]:
 
 
 def subgoals(formula: str, propositions: tuple[str, ...]) -> list[str]:
-    """`!(avoid) U r` for each proposition `r` of the goal, in order of first mention."""
+    """`!(avoid) U r` for each proposition `r` of the goal (sorted)."""
+    import spot
+
+    from specrl_jax.automata.translate import parse_formula
+
     goal, avoided = split(formula)
-    named = [p for p in re.findall(r"[A-Za-z_][A-Za-z_0-9]*", goal) if p in propositions]
-    return [f"!{disjunction(avoided)} U {r}" for r in dict.fromkeys(named) if r not in avoided]
+    named = sorted(str(a) for a in spot.atomic_prop_collect(parse_formula(goal, propositions)))
+    return [f"!{disjunction(avoided)} U {r}" for r in named if r not in avoided]
 
 
 def measure(policy_ref: str, env_id: str, suite: str, episodes: int, horizon: int,
