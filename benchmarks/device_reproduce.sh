@@ -68,6 +68,7 @@ python3 -m specrl_jax.cli reproduce --store "$store" "$@" 2>&1 | tee -a "$log"
 rc=${PIPESTATUS[0]}
 cd "$store" || exit 1
 keep_mb=${KEEP_MB:-15}
+case $keep_mb in ''|*[!0-9]*) echo "KEEP_MB is whole MB, 1 to 15; got '$keep_mb'" >&2; exit 1 ;; esac
 [ "$keep_mb" -le 15 ] || keep_mb=15  # two archives of up to 16 MiB would not come back
 keep_k=$((keep_mb * 1024))
 find . -path ./scratch -prune -o -type f -newer .copied -size -"$keep_k"k -print \
