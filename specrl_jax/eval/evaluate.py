@@ -101,8 +101,8 @@ def prepare_specs(env: Any, specs: Any) -> tuple[Any, tuple[str, ...]]:
 
 
 def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int | jax.Array,
-                policy_params: Any, key: jax.Array, spec_index: jax.Array, record: bool = False,
-                original: Any = None):
+                policy_params: Any, key: jax.Array, spec_index: jax.Array,
+                record: bool | Callable[[TaskState], Any] = False, original: Any = None):
     """One episode of at most `horizon` steps (trace-time function; `vmap` it over lanes).
 
     `horizon` is an int, or (not with `record`) an int32 scalar traced in a `while` loop.
@@ -112,9 +112,9 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
     Returns:
         `(final TaskState, aborted bool[], trace, original visits int32[] or None)`: `aborted`
         when the policy gave the episode up (see `StatefulPolicy.aborted`); `trace` is None, or
-        when `record` a pair of the per-step TaskStates `[T]` (after each step) and
-        `alive bool[T]` (the step was part of the episode); the last entry is -1 where the spec
-        has no original automaton.
+        when `record` a pair of the per-step TaskStates `[T]` (after each step; a callable
+        `record` keeps only what it returns of each) and `alive bool[T]` (the step was part of the
+        episode); the last entry is -1 where the spec has no original automaton.
     """
     key_reset, key_init, key_loop = jax.random.split(key, 3)
     obs, state = task.reset(key_reset, params, spec_index)
@@ -141,7 +141,8 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
             done | gives_up, (obs, state, carry), (obs_next, state_next, carry_next)
         )
         state = state.replace(task=state.task.replace(spec_index=state_next.spec_index))
-        trace = (state, ~done & ~gives_up) if record else None
+        kept = record(state) if callable(record) else state
+        trace = (kept, ~done & ~gives_up) if record else None
         ended = done | gives_up | terminated | truncated
         return (obs, state, carry, ended, aborted | gives_up, tracker, t + 1), trace
 
@@ -310,9 +311,11 @@ def evaluate(policy: Callable[..., Any] | StatefulPolicy, env_id_or_env: Any, sp
 
 def record_episodes(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, params: Any,
                     keys: jax.Array, spec_index: jax.Array, policy_params: Any = None,
-                    horizon: int | None = None) -> tuple[TaskState, jax.Array]:
+                    horizon: int | None = None,
+                    capture: Callable[[TaskState], Any] | None = None) -> tuple[Any, jax.Array]:
     """TaskStates `[B, T + 1]` (the reset state, then after each step) and `alive bool[B, T + 1]`
-    (the state belongs to the episode) of `B` episodes, for plots and checks."""
+    (the state belongs to the episode) of `B` episodes, for plots and checks. `capture` keeps
+    only what it returns of each TaskState (a long episode's states hold its spec every step)."""
     policy = as_stateful(policy)
     horizon = int(params.max_steps) if horizon is None else int(horizon)
     params = params.replace(max_steps=horizon)
@@ -321,9 +324,10 @@ def record_episodes(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, 
     def run(keys, spec_index):
         def one(key, index):
             _, _, (states, alive), _ = run_episode(
-                policy, task, params, horizon, policy_params, key, index, True
+                policy, task, params, horizon, policy_params, key, index, capture or True
             )
             _, first = task.reset(jax.random.split(key, 3)[0], params, index)
+            first = first if capture is None else capture(first)
             states = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, states)
             return states, jnp.concatenate([jnp.ones((1,), bool), alive])
 

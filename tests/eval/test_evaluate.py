@@ -82,6 +82,12 @@ def test_evaluate_agrees_with_recorded_episodes():
     for i in range(6):
         n = int(alive[i].sum())
         np.testing.assert_array_equal(np.asarray(states.time[i, n - 1:]), n - 1)
+    # a capture keeps only its part of each state, the same values
+    kept, kept_alive = record_episodes(random_policy(ENV), task, PARAMS, keys, index,
+                                       capture=lambda s: (s.time, s.num_accepting))
+    np.testing.assert_array_equal(np.asarray(kept_alive), np.asarray(alive))
+    np.testing.assert_array_equal(np.asarray(kept[0]), np.asarray(states.time))
+    np.testing.assert_array_equal(np.asarray(kept[1]), np.asarray(states.num_accepting))
 
 
 def test_stateful_policy_carry_restarts_every_episode():
