@@ -10,7 +10,8 @@ the violation flag (`eval.record_episodes(capture=...)`). Writes a JSON summary 
 accepting visits over time (one panel per suite, one line per method) and the persistence
 episode's path on the arena (one panel per method).
 
-    python benchmarks/lab/infinite_episodes.py --out benchmarks/results/pointltl0_infinite_episodes.json \\
+    python benchmarks/lab/infinite_episodes.py --methods genz deepltl \\
+        --out benchmarks/results/pointltl0_infinite_episodes.json \\
         --plot-visits docs/figures/infinite_accepting_visits_point.png \\
         --plot-paths docs/figures/persistence_trajectories_point.png
 """
@@ -160,7 +161,8 @@ def plot_paths(recorded: dict[str, dict[str, Any]], env_id: str, path: str) -> N
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--env", default="PointLTL0-v0")
-    parser.add_argument("--methods", nargs="+", default=["genz", "deepltl", "gcrl"])
+    parser.add_argument("--methods", nargs="+", default=["genz", "deepltl"],
+                        help="cells of --env with stored parameters (GCRL-LTL's keep none)")
     parser.add_argument("--suites", nargs="+",
                         default=["zone/infinite/rsp", "zone/infinite/rec", PERSISTENCE])
     parser.add_argument("--horizon", type=int, default=10_000, help="env steps per episode")
