@@ -228,7 +228,11 @@ def _store_cell(name: str, env_id: str) -> TrainedRun:
         return TrainedRun(cell.method, env_id, store.load_params(cell.params_from), {}, {},
                           f"{name} (seed 1 of {cell.params_from})", (1,), coordinator_cell=name)
     if not store.params_path(cell).exists():
-        raise ValueError(f"the results store holds no trained parameters for {name}")
+        why = (" (GCRL-LTL's seed-1 parameters, 17-70 MB with its goal-conditioned value "
+               "function, are not shipped with the package)" if cell.method == "gcrl" else "")
+        raise ValueError(f"the results store holds no trained parameters for {name}{why}; "
+                         f"train a run (`specrl-jax train --method {cell.method} --env "
+                         f"{cell.env_id}`) and pass its directory as the policy")
     return TrainedRun(cell.method, env_id, store.load_params(cell), dict(cell.env_options),
                       cell.options(), f"{name} (seed 1)", (1,))
 

@@ -79,6 +79,12 @@ def test_a_bad_factory_is_a_clear_error(user_module, ref, error, message):
         agents.load(ref, "LetterLTL0-v0")
 
 
+def test_a_store_cell_without_parameters_says_why_and_what_to_pass_instead():
+    with pytest.raises(ValueError, match=r"GCRL-LTL's seed-1 parameters.*are not shipped.*"
+                                         r"specrl-jax train --method gcrl --env PointLTL0-v0"):
+        agents.load("PointLTL0-v0/gcrl", "PointLTL0-v0")
+
+
 @pytest.mark.parametrize("factory, message", [
     ("continuous", ("returns actions of shape (2,) and dtype float32; LetterLTL0-v0 takes "
                     "shape () and dtype int32")),
