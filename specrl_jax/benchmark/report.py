@@ -18,12 +18,11 @@ from typing import Any
 
 import yaml
 
-from specrl_jax import families
 from specrl_jax.benchmark import grid, paper
 from specrl_jax.benchmark.grid import Cell
 from specrl_jax.benchmark.store import (
-    LEGACY_PPO,
     Store,
+    legacy_settings,
     missing_work,
     scored_now,
     seed_means,
@@ -216,16 +215,6 @@ def legacy_note(by_env: dict[str, list[tuple[Cell, dict[str, Any]]]]) -> list[st
             "dimensions, D times the original baselines' (their pages mark them "
             "`entropy_per_action_dim=False`; fidelity.md, Entropy bonus).")
     return [note, ""]
-
-
-def legacy_settings(cell: Cell, record: dict[str, Any]) -> dict[str, Any]:
-    """The PPO settings (`store.LEGACY_PPO`) a cell trained before they existed ran with, where
-    they differ from today's defaults: the entropy bonus summed over a Gaussian's action
-    dimensions (LetterWorld's moves and GCRL-LTL's primitive choice are categorical)."""
-    ppo = record.get("training", {}).get("ppo")
-    if not ppo or cell.method == "gcrl" or families.family_of_id(cell.env_id).name == "letter":
-        return {}
-    return {k: v for k, v in LEGACY_PPO.items() if k not in ppo}
 
 
 def grid_table(store: Store) -> list[str]:

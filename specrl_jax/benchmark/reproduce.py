@@ -44,7 +44,9 @@ from specrl_jax.baselines import hosts
 from specrl_jax.benchmark import estimate, grid
 from specrl_jax.benchmark.grid import Cell
 from specrl_jax.benchmark.store import (
+    LEGACY_PPO,
     Store,
+    legacy_settings,
     merge_curves,
     merge_training,
     missing_work,
@@ -538,10 +540,11 @@ def shrink(cells: Sequence[Cell], **changes: Any) -> list[Cell]:
 def format_list(cells: Sequence[Cell], store: Store | None = None) -> str:
     """The grid with each cell's state and estimated GPU time (a partial cell's: that of the
     seeds it lacks, trained as one part with `--seed-range`; without it the cell is retrained
-    whole)."""
+    whole). A state marked `*` was trained with PPO settings since replaced
+    (`store.legacy_settings`)."""
     store = store or Store()
     rows = [f"{'cell':44s} {'step':>4s} {'state':8s} {'seeds':>5s} {'est. GPU':>9s}"]
-    todo, rates = 0.0, estimate.measured_rates()
+    todo, rates, legacy = 0.0, estimate.measured_rates(), 0
     for c in cells:
         state = store.state(c)
         record = store.read(c)
@@ -550,12 +553,18 @@ def format_list(cells: Sequence[Cell], store: Store | None = None) -> str:
         seconds = estimate.seconds(dataclasses.replace(c, seeds=left), rates)
         if state != "done":
             todo += seconds
-        rows.append(f"{c.name:44s} {c.step:4d} {state:8s} {f'{seeds}/{c.seeds}':>5s} "
-                    f"{_duration(seconds):>9s}")
+        marked = bool(record and c.trains and legacy_settings(c, record))
+        legacy += marked
+        rows.append(f"{c.name:44s} {c.step:4d} {state + '*' * marked:8s} "
+                    f"{f'{seeds}/{c.seeds}':>5s} {_duration(seconds):>9s}")
     done = sum(store.state(c) == "done" for c in cells)
     rows.append(f"{len(cells)} cells: {done} done, {len(cells) - done} to run, "
                 f"about {_duration(todo)} of GPU time (one GPU; partial cells completed with "
                 "--seed-range)")
+    if legacy:
+        settings = ", ".join(f"{k}={v}" for k, v in LEGACY_PPO.items())
+        rows.append(f"* {legacy} cell{'s' * (legacy > 1)} trained with PPO settings since "
+                    f"replaced ({settings}; docs/fidelity.md); --rerun trains one again")
     return "\n".join(rows)
 
 

@@ -25,7 +25,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from specrl_jax import specs
+from specrl_jax import families, specs
 from specrl_jax.benchmark import grid
 from specrl_jax.benchmark.grid import Cell
 
@@ -297,6 +297,16 @@ def merge_training(training: dict[str, Any], summary: dict[str, Any], num_seeds:
                   env_steps_per_s=sum(steps) / sum(
                       s / p["env_steps_per_s"] for s, p in zip(steps, timed)) if timed else 0.0)
     return merged
+
+
+def legacy_settings(cell: Cell, record: dict[str, Any]) -> dict[str, Any]:
+    """The PPO settings (`LEGACY_PPO`) a cell trained before they existed ran with, where they
+    differ from today's defaults: the entropy bonus summed over a Gaussian's action dimensions
+    (LetterWorld's moves and GCRL-LTL's primitive choice are categorical)."""
+    ppo = record.get("training", {}).get("ppo")
+    if not ppo or cell.method == "gcrl" or families.family_of_id(cell.env_id).name == "letter":
+        return {}
+    return {k: v for k, v in LEGACY_PPO.items() if k not in ppo}
 
 
 def _as_trained(setting: str, value: Any) -> Any:

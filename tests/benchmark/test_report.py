@@ -2,6 +2,7 @@
 measurement sections, figures, and the same files when rendered twice."""
 
 import dataclasses
+import json
 
 import numpy as np
 from test_reproduce import CELL, Fakes, fake_result
@@ -175,3 +176,18 @@ def test_cells_trained_with_the_joint_entropy_are_marked_where_it_changed_their_
     note = report.legacy_note({"PointLTL0-v0": [(point, old)], "LetterLTL0-v0": [(letter, old)]})
     assert note[0].startswith("1 cell was trained with the entropy bonus summed")
     assert report.legacy_note({"PointLTL0-v0": [(point, new)]}) == []
+
+
+def test_the_list_marks_cells_trained_with_replaced_settings(tmp_path):
+    old = {"config": {}, "training": {"ppo": {"ent_coef": 0.003}}}
+    new = {"config": {}, "training": {"ppo": {"ent_coef": 0.003, "entropy_per_action_dim": True}}}
+    store = Store(tmp_path)
+    point, car = grid.cell("PointLTL0-v0/genz"), grid.cell("CarLTL0-v0/genz")
+    for cell, record in ((point, old), (car, new)):
+        store.cell_dir(cell).mkdir(parents=True)
+        (store.cell_dir(cell) / "cell.json").write_text(json.dumps(record))
+    rows = reproduce.format_list([point, car], store).splitlines()
+    assert rows[1].split()[:3] == ["PointLTL0-v0/genz", "0", "partial*"]
+    assert rows[2].split()[:3] == ["CarLTL0-v0/genz", "2", "partial"]
+    assert rows[-1].startswith("* 1 cell trained with PPO settings since replaced "
+                               "(entropy_per_action_dim=False")
