@@ -178,6 +178,9 @@ def world_page(env_id: str, rows: Sequence[tuple[Cell, dict[str, Any]]], store: 
         if table:
             lines += [f"## {suite}", "", *table, ""]
     notes = [f"- {method_label(c)}: {r['params_note']}" for c, r in rows if r.get("params_note")]
+    notes += [f"- {method_label(c)}: seed 1's parameters of `{c.params_from}` on every agent; its "
+              f"seeds are evaluation seeds of that one training seed, so the ± is the "
+              f"evaluation's spread, not training's" for c, _ in rows if c.params_from]
     if notes:
         lines += [*notes, ""]
     settings = [f"- {method_label(c)}: {s}" for c, r in rows if (s := cell_settings(c, r))]

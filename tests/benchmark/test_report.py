@@ -178,6 +178,15 @@ def test_cells_trained_with_the_joint_entropy_are_marked_where_it_changed_their_
     assert report.legacy_note({"PointLTL0-v0": [(point, new)]}) == []
 
 
+def test_a_coordinator_cells_page_says_its_seeds_are_evaluation_seeds_of_one_training_seed(
+        tmp_path):
+    cell = grid.cell("PointLTL0MA2-v0/genz+coordinator")
+    lines, _ = report.world_page(cell.env_id, [(cell, {"suites": {}})], Store(tmp_path),
+                                 tmp_path, "figures")
+    assert ("- GenZ-LTL + coordinator: seed 1's parameters of `PointLTL0-v0/genz` on every agent; "
+            "its seeds are evaluation seeds of that one training seed") in "\n".join(lines)
+
+
 def test_the_list_marks_cells_trained_with_replaced_settings(tmp_path):
     old = {"config": {}, "training": {"ppo": {"ent_coef": 0.003}}}
     new = {"config": {}, "training": {"ppo": {"ent_coef": 0.003, "entropy_per_action_dim": True}}}
