@@ -1,5 +1,6 @@
-"""One recorded episode per method and infinite suite on a Zone world, with the stored cells' seed-1
-parameters: accepting visits against time, and where the agent goes on the persistence task.
+"""One recorded episode per method and infinite suite on a static Zone world, with the stored cells'
+seed-1 parameters: accepting visits against time, and where the agent goes on the persistence task
+(the path figure draws the zones where they start, so it suits worlds whose zones stay there).
 
 For each `--methods` cell of `--env` in the results store, the first formula of each `--suites`
 suite runs one episode of `--horizon` steps from the same reset key (every method meets the same

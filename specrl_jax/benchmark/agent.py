@@ -224,17 +224,24 @@ def _store_cell(name: str, env_id: str) -> TrainedRun:
     if not cell.trains:  # the coordinator over a single-agent cell's parameters
         if not store.params_path(cell.params_from).exists():
             raise ValueError(f"the results store holds no trained parameters for "
-                             f"{cell.params_from}, which {name} runs")
+                             f"{cell.params_from}, which {name} runs{_why_none(cell)}")
         return TrainedRun(cell.method, env_id, store.load_params(cell.params_from), {}, {},
                           f"{name} (seed 1 of {cell.params_from})", (1,), coordinator_cell=name)
     if not store.params_path(cell).exists():
-        why = (" (GCRL-LTL's seed-1 parameters, 17-70 MB with its goal-conditioned value "
-               "function, are not shipped with the package)" if cell.method == "gcrl" else "")
-        raise ValueError(f"the results store holds no trained parameters for {name}{why}; "
-                         f"train a run (`specrl-jax train --method {cell.method} --env "
-                         f"{cell.env_id}`) and pass its directory as the policy")
+        raise ValueError(f"the results store holds no trained parameters for {name}"
+                         f"{_why_none(cell)}; train a run with the cell's settings (`specrl-jax "
+                         f"train --method {cell.method} --env {cell.env_id} ...`) and pass its "
+                         "directory as the policy")
     return TrainedRun(cell.method, env_id, store.load_params(cell), dict(cell.env_options),
                       cell.options(), f"{name} (seed 1)", (1,))
+
+
+def _why_none(cell: Any) -> str:
+    """Why a store cell of this method ships no parameters ('' where it should have them)."""
+    if cell.method != "gcrl":
+        return ""
+    return (" (GCRL-LTL's seed-1 parameters, 17-70 MB with its goal-conditioned value function, "
+            "are not shipped with the package)")
 
 
 def select_seed(run: TrainedRun, seed: int | None) -> TrainedRun:

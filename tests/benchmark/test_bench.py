@@ -83,6 +83,9 @@ def test_a_store_cell_without_parameters_says_why_and_what_to_pass_instead():
     with pytest.raises(ValueError, match=r"GCRL-LTL's seed-1 parameters.*are not shipped.*"
                                          r"specrl-jax train --method gcrl --env PointLTL0-v0"):
         agents.load("PointLTL0-v0/gcrl", "PointLTL0-v0")
+    with pytest.raises(ValueError, match=r"PointLTL0-v0/gcrl, which PointLTL0MA2-v0/gcrl\+"
+                                         r"coordinator runs \(GCRL-LTL's seed-1 parameters"):
+        agents.load("PointLTL0MA2-v0/gcrl+coordinator", "PointLTL0MA2-v0")
 
 
 @pytest.mark.parametrize("factory, message", [
