@@ -44,6 +44,9 @@ SCRIPTS = {
     "lab/curriculum_pairs.py": ["--policy", "random", "--env", "LetterLTL0-v0", "--episodes", "1"],
     "lab/coordinator_actions.py": ["--cells", "PointLTL0MA2-v0/genz+coordinator", "--episodes", "1",
                                    "--horizon", "3"],
+    "lab/infinite_episodes.py": ["--methods", "genz", "--suites", "zone/infinite/per",
+                                 "--horizon", "5", "--summary", "episodes.json",
+                                 "--plot-paths", "paths.png"],
     "lab/arm_solve_capacity.py": ["--policy", "random", "--capacities", "1.0", "--episodes", "1",
                                   "--steps", "2"],
     "lab/curve_agreement.py": [

@@ -7,12 +7,13 @@ suite runs one episode of `--horizon` steps from the same reset key (every metho
 layout per suite), through the method's test-time agent as the evaluation runs it (sampled
 actions on infinite tasks). Per step it keeps only the agent's xy, the accepting visits so far and
 the violation flag (`eval.record_episodes(capture=...)`). Writes a JSON summary (visits every
-`--every` steps, final visits, the step of a violation) and two figures:
+`--every` steps, final visits, the step of a violation; `--summary`), one result row (`--out`,
+`benchmarks/harness.py`) and two figures:
 accepting visits over time (one panel per suite, one line per method) and the persistence
 episode's path on the arena (one panel per method).
 
     python benchmarks/lab/infinite_episodes.py --methods genz deepltl \\
-        --out benchmarks/results/pointltl0_infinite_episodes.json \\
+        --summary benchmarks/results/pointltl0_infinite_episodes.json \\
         --plot-visits docs/figures/infinite_accepting_visits_point.png \\
         --plot-paths docs/figures/persistence_trajectories_point.png
 """
@@ -169,7 +170,8 @@ def main() -> None:
     parser.add_argument("--horizon", type=int, default=10_000, help="env steps per episode")
     parser.add_argument("--seed", type=int, default=2026, help="the episodes' reset key")
     parser.add_argument("--every", type=int, default=50, help="keep every N-th step in the JSON")
-    parser.add_argument("--out", default=None, help="write the JSON summary here")
+    parser.add_argument("--summary", default=None, help="write the JSON summary here")
+    parser.add_argument("--out", default=None, help="append the result row to this file")
     parser.add_argument("--plot-visits", default=None, help="accepting visits figure (PNG)")
     parser.add_argument("--plot-paths", default=None, help="persistence paths figure (PNG)")
     args = parser.parse_args()
@@ -178,8 +180,8 @@ def main() -> None:
     recorded = {m: record(args.env, m, args.suites, args.horizon, args.seed)
                 for m in args.methods}
     result = summary(recorded, args.every)
-    if args.out:
-        with open(args.out, "w") as f:
+    if args.summary:
+        with open(args.summary, "w") as f:
             json.dump({"env": args.env, "horizon": args.horizon, "seed": args.seed,
                        "every": args.every, "methods": result}, f)
     if args.plot_visits:
@@ -194,7 +196,7 @@ def main() -> None:
         for m in args.methods)
     harness.emit(harness.row(f"{args.env}: accepting visits of one {args.horizon}-step episode "
                              "per method and suite, seed-1 parameters", value, len(args.suites)),
-                 None)
+                 args.out)
 
 
 if __name__ == "__main__":
