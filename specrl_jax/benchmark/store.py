@@ -301,7 +301,7 @@ def merge_training(training: dict[str, Any], summary: dict[str, Any], num_seeds:
 
 def legacy_settings(cell: Cell, record: dict[str, Any]) -> dict[str, Any]:
     """The PPO settings (`LEGACY_PPO`) a cell trained before they existed ran with, where they
-    differ from today's defaults: the entropy bonus summed over a Gaussian's action dimensions
+    differ from the current defaults: the entropy bonus summed over a Gaussian's action dimensions
     (LetterWorld's moves and GCRL-LTL's primitive choice are categorical)."""
     ppo = record.get("training", {}).get("ppo")
     if not ppo or cell.method == "gcrl" or families.family_of_id(cell.env_id).name == "letter":

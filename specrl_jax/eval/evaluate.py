@@ -102,7 +102,7 @@ def prepare_specs(env: Any, specs: Any) -> tuple[Any, tuple[str, ...]]:
 
 def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int | jax.Array,
                 policy_params: Any, key: jax.Array, spec_index: jax.Array,
-                record: bool | Callable[[TaskState], Any] = False, original: Any = None):
+                record: Callable[[TaskState], Any] | None = None, original: Any = None):
     """One episode of at most `horizon` steps (trace-time function; `vmap` it over lanes).
 
     `horizon` is an int, or (not with `record`) an int32 scalar traced in a `while` loop.
@@ -112,9 +112,9 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
     Returns:
         `(final TaskState, aborted bool[], trace, original visits int32[] or None)`: `aborted`
         when the policy gave the episode up (see `StatefulPolicy.aborted`); `trace` is None, or
-        when `record` a pair of the per-step TaskStates `[T]` (after each step; a callable
-        `record` keeps only what it returns of each) and `alive bool[T]` (the step was part of the
-        episode); the last entry is -1 where the spec has no original automaton.
+        with `record` a pair of what it returns of each step's TaskState `[T]` (after each step)
+        and `alive bool[T]` (the step was part of the episode); the last entry is -1 where the
+        spec has no original automaton.
     """
     key_reset, key_init, key_loop = jax.random.split(key, 3)
     obs, state = task.reset(key_reset, params, spec_index)
@@ -141,13 +141,12 @@ def run_episode(policy: StatefulPolicy, task: TaskEnv, params: Any, horizon: int
             done | gives_up, (obs, state, carry), (obs_next, state_next, carry_next)
         )
         state = state.replace(task=state.task.replace(spec_index=state_next.spec_index))
-        kept = record(state) if callable(record) else state
-        trace = (kept, ~done & ~gives_up) if record else None
+        trace = None if record is None else (record(state), ~done & ~gives_up)
         ended = done | gives_up | terminated | truncated
         return (obs, state, carry, ended, aborted | gives_up, tracker, t + 1), trace
 
     init = (obs, state, carry, jnp.zeros((), bool), jnp.zeros((), bool), tracker, jnp.int32(0))
-    if record:
+    if record is not None:
         final, trace = jax.lax.scan(lambda loop, _: body(loop), init, None, length=horizon)
     else:  # a scan for an int horizon, a while loop for a traced one
         final, trace = jax.lax.fori_loop(0, horizon, lambda _, loop: body(loop)[0], init), None
@@ -319,15 +318,16 @@ def record_episodes(policy: Callable[..., Any] | StatefulPolicy, task: TaskEnv, 
     policy = as_stateful(policy)
     horizon = int(params.max_steps) if horizon is None else int(horizon)
     params = params.replace(max_steps=horizon)
+    keep = capture or (lambda state: state)
 
     @jax.jit
     def run(keys, spec_index):
         def one(key, index):
             _, _, (states, alive), _ = run_episode(
-                policy, task, params, horizon, policy_params, key, index, capture or True
+                policy, task, params, horizon, policy_params, key, index, keep
             )
             _, first = task.reset(jax.random.split(key, 3)[0], params, index)
-            first = first if capture is None else capture(first)
+            first = keep(first)
             states = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b]), first, states)
             return states, jnp.concatenate([jnp.ones((1,), bool), alive])
 
