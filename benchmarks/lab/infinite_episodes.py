@@ -131,16 +131,14 @@ def plot_paths(recorded: dict[str, dict[str, Any]], env_id: str, path: str) -> N
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.patches import Circle
 
-    from specrl_jax.benchmark.report import METHOD_NAMES, ZONE_COLOURS
+    from specrl_jax.benchmark.report import METHOD_NAMES, draw_arena
 
     fig, axes = plt.subplots(1, len(recorded), figsize=(3.4 * len(recorded), 3.6),
                              layout="constrained")
     for ax, (method, rec) in zip(np.atleast_1d(axes), recorded.items()):
         zones = rec["zones"]
-        for (x, y), colour, radius in zip(zones["xy"], zones["colour"], zones["radius"]):
-            ax.add_patch(Circle((x, y), radius, color=ZONE_COLOURS.get(colour, "0.6"), alpha=0.5))
+        draw_arena(ax, zones["xy"], zones["colour"], zones["radius"])
         ep = rec["episodes"][PERSISTENCE]
         ax.plot(ep["xy"][:, 0], ep["xy"][:, 1], "k", linewidth=0.6)
         ax.plot(*ep["xy"][0], "ko", markersize=3)
@@ -149,11 +147,6 @@ def plot_paths(recorded: dict[str, dict[str, Any]], env_id: str, path: str) -> N
         outcome = (f"violation at step {ep['violation_step']}" if ep["violation_step"] is not None
                    else f"{ep['visits'][-1]} accepting visits in {ep['steps']} steps")
         ax.set_title(f"{METHOD_NAMES.get(method, method)}\n{outcome}", fontsize=8)
-        ax.set_xlim(-3.3, 3.3)
-        ax.set_ylim(-3.3, 3.3)
-        ax.set_aspect("equal")
-        ax.set_xticks([])
-        ax.set_yticks([])
     formula = next(iter(recorded.values()))["episodes"][PERSISTENCE]["formula"]
     fig.suptitle(f"{env_id}: {formula} (seed-1 parameters, one episode)", fontsize=9)
     fig.savefig(path, dpi=110)

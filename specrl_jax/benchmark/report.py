@@ -380,13 +380,26 @@ ZONE_COLOURS = {"green": "#2ca02c", "yellow": "#e6c200", "blue": "#1f5fd6", "mag
 OUTCOME_STYLES = {"success": "-", "violation": "--", "timeout": ":"}
 
 
+def draw_arena(ax: Any, zone_xy: Sequence[Sequence[float]], zone_colour: Sequence[str],
+               zone_radius: Sequence[float]) -> None:
+    """The Zone arena on `ax`: its zones (centres in m, colours by proposition, radii in m) as
+    discs, the square's extent, no ticks."""
+    from matplotlib.patches import Circle
+
+    for (x, y), colour, radius in zip(zone_xy, zone_colour, zone_radius):
+        ax.add_patch(Circle((x, y), radius, color=ZONE_COLOURS.get(colour, "0.6"), alpha=0.5))
+    ax.set_xlim(-3.3, 3.3)
+    ax.set_ylim(-3.3, 3.3)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+
+
 def trajectories_figure(env_id: str, store: Store, path: Path) -> Path | None:
     """The paper's trajectory figure: each method's recorded episodes of the trajectory formula
     on the arena, the first episode's zones drawn (every method meets the same layouts); a
     method without recorded episodes is drawn as missing. None when no cell of `env_id` has
     any."""
-    from matplotlib.patches import Circle
-
     cells = [c for c in grid.GRID if c.env_id == env_id and not c.variant]
     found = {c.method: store.read_trajectories(c) for c in cells}
     if not any(found.values()):
@@ -397,19 +410,13 @@ def trajectories_figure(env_id: str, store: Store, path: Path) -> Path | None:
     formula = next(t["formula"] for t in found.values() if t)
     for ax, method in zip(axes, grid.METHODS):
         ax.set_title(METHOD_NAMES[method], fontsize=9)
-        ax.set_xlim(-3.3, 3.3)
-        ax.set_ylim(-3.3, 3.3)
-        ax.set_aspect("equal")
-        ax.set_xticks([])
-        ax.set_yticks([])
         data = found.get(method)
+        first = data["episodes"][0] if data else {}
+        draw_arena(ax, first.get("zone_xy", []), first.get("zone_color", []),
+                   first.get("zone_radius", []))
         if not data:
             ax.text(0, 0, "missing", ha="center", va="center", fontsize=8, color="0.5")
             continue
-        first = data["episodes"][0]
-        for (x, y), colour, radius in zip(first["zone_xy"], first["zone_color"],
-                                          first["zone_radius"]):
-            ax.add_patch(Circle((x, y), radius, color=ZONE_COLOURS.get(colour, "0.6"), alpha=0.5))
         episode = first
         xy = episode["xy"]
         ax.plot([p[0] for p in xy], [p[1] for p in xy], "k", linewidth=1,
