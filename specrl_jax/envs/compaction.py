@@ -13,7 +13,8 @@ other items in its batch.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -112,12 +113,16 @@ def where_needed(fn: Callable, needs: Callable, default: Callable,
             needs it (each size is a program of its own).
 
     The three functions may close over constants only: a traced value (a batched one above
-    all) must come in through `x`. Forward-mode differentiation works; reverse mode does not
-    (`custom_vmap` has no transpose).
+    all) must come in through `x`. `fn` is traced once per item shape (`jax.jit`) and that
+    trace batched for every size and `vmap` level, so it may not depend on state active where
+    it is called (a context manager, a patched module) unless it sets that state itself.
+    Forward-mode differentiation works; reverse mode does not (`custom_vmap` has no transpose).
     """
     capacities = tuple(float(c) for c in capacities)
     if not capacities or not all(0.0 < c <= 1.0 for c in capacities):
         raise ValueError(f"capacities are fractions of the batch in (0, 1]; got {capacities}")
+    # traced once per item shape, then batched for every sub-batch size and nesting level
+    fn = jax.jit(fn)
 
     @custom_vmap
     def one(x: Any) -> Any:

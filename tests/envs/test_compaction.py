@@ -52,6 +52,25 @@ def test_two_vmaps_merge_into_one_batch(capacities):
         assert "f32[60,4] = sin" not in program
 
 
+def test_the_expensive_function_is_traced_once_for_every_size_and_level():
+    """Its Python runs once per item shape: each sub-batch size and each merged `vmap` level
+    batches that one trace (an arm's contact solve takes tens of seconds to trace)."""
+    calls = []
+
+    def counted(x):
+        calls.append(1)
+        return expensive(x)
+
+    function = where_needed(counted, needs, default, (0.1, 0.2, 0.5))
+    x = {"a": jax.random.uniform(jax.random.key(1), (3, 20, 4)), "scale": jnp.float32(2.0)}
+    batched = jax.vmap(jax.vmap(function, in_axes=({"a": 0, "scale": None},)),
+                       in_axes=({"a": 0, "scale": None},))
+    inner = {"a": 0, "scale": None}
+    _assert_same(jax.jit(batched)(x), jax.vmap(jax.vmap(reference, in_axes=(inner,)),
+                                               in_axes=(inner,))(x))
+    assert len(calls) == 1
+
+
 def test_one_item_and_a_loop_inside_vmap():
     function = where_needed(expensive, needs, default, [0.5])
     for value in (0.9, 0.2):
