@@ -411,13 +411,12 @@ def trajectories_figure(env_id: str, store: Store, path: Path) -> Path | None:
     for ax, method in zip(axes, grid.METHODS):
         ax.set_title(METHOD_NAMES[method], fontsize=9)
         data = found.get(method)
-        first = data["episodes"][0] if data else {}
-        draw_arena(ax, first.get("zone_xy", []), first.get("zone_color", []),
-                   first.get("zone_radius", []))
         if not data:
+            draw_arena(ax, [], [], [])
             ax.text(0, 0, "missing", ha="center", va="center", fontsize=8, color="0.5")
             continue
-        episode = first
+        episode = data["episodes"][0]
+        draw_arena(ax, episode["zone_xy"], episode["zone_color"], episode["zone_radius"])
         xy = episode["xy"]
         ax.plot([p[0] for p in xy], [p[1] for p in xy], "k", linewidth=1,
                 linestyle=OUTCOME_STYLES.get(episode["outcome"], "-"))

@@ -121,7 +121,6 @@ def where_needed(fn: Callable, needs: Callable, default: Callable,
     capacities = tuple(float(c) for c in capacities)
     if not capacities or not all(0.0 < c <= 1.0 for c in capacities):
         raise ValueError(f"capacities are fractions of the batch in (0, 1]; got {capacities}")
-    # traced once per item shape, then batched for every sub-batch size and nesting level
     fn = jax.jit(fn)
 
     @custom_vmap
