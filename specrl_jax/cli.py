@@ -558,6 +558,10 @@ def pretrain_command(args: argparse.Namespace) -> int:
     arg("--store", default=None, help="results store directory (default: the package's)"),
     arg("--gpus", type=positive_int, default=None,
         help="cells run side by side (default: the visible GPUs; 1: one after the other)"),
+    arg("--cells-per-gpu", type=positive_int, default=1, metavar="K",
+        help="run K cells side by side on each GPU, each process with 1/K of the memory one "
+             "would take (default 1): for cells whose steps leave the GPU idle between kernel "
+             "launches"),
     arg("--seeds", type=positive_int, default=None,
         help="seeds per cell (default 5): fewer for smoke runs"),
     arg("--seed-range", type=seed_range, default=None, metavar="FIRST-LAST", help=SEED_RANGE_HELP),

@@ -12,7 +12,10 @@ On a lent machine, `--store $OUT/store` keeps the results (and the resumable run
 under its `scratch/`) where they come back; copy the cell directories into the package store.
 
 On a host with several GPUs the cells run side by side, one per GPU (a subprocess each with
-`CUDA_VISIBLE_DEVICES`); on one GPU or a CPU, one after the other in this process. In a job of
+`CUDA_VISIBLE_DEVICES`); on one GPU or a CPU, one after the other in this process.
+`cells_per_gpu` K > 1 runs K such subprocesses on each GPU, each with 1/K of the memory that one
+process would take: cells whose steps are too small to fill a GPU (the MuJoCo worlds at the
+grid's batches wait on kernel launches) share it. In a job of
 several processes (`baselines.hosts.join`: `specrl-jax reproduce --coordinator ...`) the cells
 run one after the other, each trained over every process's devices; every process evaluates
 (the same episodes on its own devices), process 0 alone writes the store.
@@ -582,22 +585,27 @@ def discard(cell: Cell, store: Store) -> None:
 def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None = None,
               log: Log = print, gpus: int | None = None, cells: Sequence[Cell] | None = None,
               worker_args: Sequence[str] = (), rerun: bool = False,
-              max_minutes: float | None = None, **run_options: Any) -> dict[str, str]:
+              max_minutes: float | None = None, cells_per_gpu: int = 1,
+              **run_options: Any) -> dict[str, str]:
     """Run the selected cells (`grid.select(patterns)`, or `cells`); returns `{name: state}`.
     `rerun` discards what the store holds of them first, so they run end to end. After
     `max_minutes` no cell or evaluation starts and training stops at its next checkpoint
     (every 10 updates), so a run fits a time slot and the same command resumes it. A cell that
     fails is logged with its error and the next one runs (as side by side). In a job of
     several processes (`hosts.join`) the cells run in turn (`gpus` None or 1), each over every
-    process's devices; process 0 writes and logs. `run_options` go to `run_cell`; with
+    process's devices; process 0 writes and logs. `cells_per_gpu` subprocesses share each GPU
+    (module docstring). `run_options` go to `run_cell`; with
     `part` (seed numbers) the states are those of the part's seeds, and a cell whose part cannot
     be trained (`part_problem`) is skipped."""
     deadline = None if max_minutes is None else time.monotonic() + 60.0 * max_minutes
     store = store or Store()
     chosen = list(cells) if cells is not None else grid.select(patterns)
+    if not isinstance(cells_per_gpu, int) or cells_per_gpu < 1:
+        raise ValueError(f"cells_per_gpu is a count of cells sharing one GPU (>= 1); got "
+                         f"{cells_per_gpu!r}")
     if hosts.joined():
-        if gpus not in (None, 1):
-            raise ValueError(f"--gpus {gpus} runs cells side by side on one host; a job of several "
+        if gpus not in (None, 1) or cells_per_gpu != 1:
+            raise ValueError("--gpus and --cells-per-gpu run cells side by side on one host; a job of several "
                              "processes trains each cell over every process's devices, one cell "
                              "after the other: leave --gpus out")
         gpus, log = 1, hosts.writer_log(log)
@@ -624,14 +632,17 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
     if not todo:
         return {c.name: state(c) for c in chosen}
     gpus = gpu_count() if gpus is None else gpus
+    slots = max(gpus, 1) * cells_per_gpu
     rates = estimate.measured_rates()  # a part's estimate: that many seeds
     estimates = {c.name: estimate.seconds(dataclasses.replace(c, seeds=len(part)) if part else c,
                                           rates) for c in todo}
     total = sum(estimates.values())
     log(f"{len(todo)} cells to run, about {_duration(total)} of GPU time"
-        + (f" on {gpus} GPUs side by side" if gpus > 1 else ""))
-    if gpus > 1 and len(todo) > 1:
-        _run_side_by_side(todo, estimates, store, gpus, log, worker_args, deadline)
+        + (f", {slots} side by side on {max(gpus, 1)} GPU{'s' if gpus > 1 else ''}"
+           if slots > 1 else ""))
+    if slots > 1 and len(todo) > 1:
+        _run_side_by_side(todo, estimates, store, max(gpus, 1), log, worker_args, deadline,
+                          cells_per_gpu)
     else:
         spent, estimated = 0.0, 0.0
         for i, c in enumerate(todo):
@@ -658,10 +669,11 @@ def reproduce(patterns: str | Sequence[str] | None = None, store: Store | None =
 
 def _run_side_by_side(cells: Sequence[Cell], estimated: dict[str, float], store: Store,
                       gpus: int, log: Log, worker_args: Sequence[str],
-                      deadline: float | None = None) -> None:
-    """One subprocess per cell, at most one per GPU at a time, none started after `deadline`
-    (each is given the minutes left); their output is prefixed with the cell's name.
-    `estimated`: each cell's estimated seconds, for the ETA."""
+                      deadline: float | None = None, cells_per_gpu: int = 1) -> None:
+    """One subprocess per cell, at most `cells_per_gpu` per GPU at a time (each then given that
+    share of the memory one process takes), none started after `deadline` (each is given the
+    minutes left); their output is prefixed with the cell's name. `estimated`: each cell's
+    estimated seconds, for the ETA."""
     import threading
 
     queue = list(cells)
@@ -673,37 +685,50 @@ def _run_side_by_side(cells: Sequence[Cell], estimated: dict[str, float], store:
         for line in proc.stdout:
             log(f"[{name}] {line.rstrip()}")
 
+    slots = gpus * cells_per_gpu
     while queue or running:
-        for gpu in range(gpus):
+        for slot in range(slots):  # slot s on GPU s % gpus: every GPU takes a cell before any two
+            gpu = slot % gpus
             left = _seconds_left(deadline)
             if left == 0.0 and queue:
                 log(f"time limit reached: {', '.join(x.name for x in queue)} not started; "
                     "rerun the same command to resume")
                 queue.clear()
-            if gpu not in running and queue:
+            if slot not in running and queue:
                 c = queue.pop(0)
                 env = dict(os.environ, CUDA_VISIBLE_DEVICES=str(gpu))
+                if cells_per_gpu > 1:
+                    env["XLA_PYTHON_CLIENT_MEM_FRACTION"] = f"{memory_share(cells_per_gpu):.3f}"
                 limit = [] if left is None else ["--max-minutes", f"{left / 60.0:.3f}"]
                 cmd = [sys.executable, "-m", "specrl_jax.benchmark.reproduce", "--cells", c.name,
                        "--store", str(store.root), "--gpus", "1", *worker_args, *limit]
                 proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE,
                                         stderr=subprocess.STDOUT, text=True)
                 threading.Thread(target=pump, args=(proc, c.name), daemon=True).start()
-                running[gpu] = (proc, c, time.perf_counter())
+                running[slot] = (proc, c, time.perf_counter())
                 log(f"{c.name}: started on GPU {gpu}")
         time.sleep(2.0)
-        for gpu, (proc, c, began) in list(running.items()):
+        for slot, (proc, c, began) in list(running.items()):
             if proc.poll() is None:
                 continue
-            del running[gpu]
+            del running[slot]
             finished += 1
             spent += time.perf_counter() - began
             done_estimate += estimated[c.name]
             left = sum(estimated[x.name] for x in queue) + sum(
                 estimated[r[1].name] for r in running.values())
-            eta = left * spent / max(done_estimate, 1e-9) / gpus
+            eta = left * spent / max(done_estimate, 1e-9) / slots
             log(f"{c.name}: exit {proc.returncode}, {store.state(c)}; {finished}/{len(cells)} "
                 f"cells after {_duration(time.perf_counter() - start_all)}; ETA {_duration(eta)}")
+
+
+def memory_share(cells_per_gpu: int) -> float:
+    """The fraction of a GPU's memory that JAX takes in each of `cells_per_gpu` processes
+    sharing it: XLA_PYTHON_CLIENT_MEM_FRACTION's default (0.75) split between them, so that
+    MuJoCo Warp's own allocations keep the room they have beside one process; the caller's
+    XLA_PYTHON_CLIENT_MEM_FRACTION, when set, is split instead."""
+    total = float(os.environ.get("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.75"))
+    return total / cells_per_gpu
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -725,6 +750,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="results store directory (default: the package's)")
     parser.add_argument("--gpus", type=int, default=None,
                         help="cells side by side (default: the visible GPUs; 1: in turn)")
+    parser.add_argument("--cells-per-gpu", type=int, default=1, metavar="K",
+                        help="run K cells side by side on each GPU, each process with 1/K of "
+                             "the memory one would take (default 1); for cells whose steps "
+                             "leave the GPU idle between kernel launches")
     parser.add_argument("--seeds", type=int, default=None,
                         help="seeds per cell (default 5): fewer for smoke runs")
     parser.add_argument("--seed-range", type=seed_range, default=None, metavar="FIRST-LAST",
@@ -764,6 +793,7 @@ def run_from_args(args: argparse.Namespace) -> int:
         worker += ["--seed-range", f"{part[0]}-{part[-1]}"]
     states = reproduce(cells=cells, store=store, gpus=args.gpus, worker_args=worker,
                        rerun=getattr(args, "rerun", False), part=part,
+                       cells_per_gpu=getattr(args, "cells_per_gpu", 1),
                        max_minutes=getattr(args, "max_minutes", None),
                        log=lambda line: print(line, flush=True))
     incomplete = [n for n, s in states.items() if s != "done"]

@@ -404,6 +404,45 @@ def test_several_gpus_run_one_cell_per_gpu_side_by_side(tmp_path, monkeypatch):
     assert launched == [] and "not started" in lines[-1]
 
 
+def test_cells_per_gpu_share_each_gpu_and_split_its_memory(tmp_path, monkeypatch):
+    launched, alive = [], []
+
+    class FakeProcess:  # a worker that runs until it has been polled twice
+        def __init__(self, cmd, env, **kw):
+            alive.append(self)
+            launched.append((env["CUDA_VISIBLE_DEVICES"],
+                             env.get("XLA_PYTHON_CLIENT_MEM_FRACTION"), len(alive)))
+            self.stdout, self.returncode, self.polls = iter([]), None, 0
+
+        def poll(self):
+            self.polls += 1
+            if self.polls == 2:
+                alive.remove(self)
+                self.returncode = 0
+            return self.returncode
+
+    monkeypatch.setattr(reproduce.subprocess, "Popen", FakeProcess)
+    monkeypatch.setattr(reproduce.time, "sleep", lambda s: None)
+    monkeypatch.delenv("XLA_PYTHON_CLIENT_MEM_FRACTION", raising=False)
+    cells = grid.select("PointLTL1-v0/*")[:5]
+    lines = []
+    reproduce.reproduce(cells=cells, store=Store(tmp_path), gpus=1, cells_per_gpu=2,
+                        log=lines.append)
+    assert [gpu for gpu, _, _ in launched] == ["0"] * 5
+    assert {share for _, share, _ in launched} == {"0.375"}  # JAX's default 0.75, halved
+    assert max(running for *_, running in launched) == 2
+    assert "2 side by side on 1 GPU" in lines[0]
+    launched.clear()
+    monkeypatch.setenv("XLA_PYTHON_CLIENT_MEM_FRACTION", "0.9")
+    reproduce.reproduce(cells=cells, store=Store(tmp_path), gpus=2, cells_per_gpu=3,
+                        log=lines.append)
+    assert [gpu for gpu, _, _ in launched] == ["0", "1", "0", "1", "0"]  # each GPU in turn
+    assert {share for _, share, _ in launched} == {"0.300"}
+    assert max(running for *_, running in launched) == 5
+    with pytest.raises(ValueError, match="cells_per_gpu is a count"):
+        reproduce.reproduce(cells=cells, store=Store(tmp_path), gpus=1, cells_per_gpu=0)
+
+
 def test_rerun_discards_a_done_cell_and_runs_it_end_to_end(tmp_path):
     store = Store(tmp_path)
     Fakes().run(store)
